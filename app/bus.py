@@ -1,0 +1,126 @@
+"""The zenoh bus: opening a session and every key expression the pipeline uses.
+
+Keys are ``smartroom/<room>/<stage>/...``; they are built here and nowhere else.
+Sessions are zenoh peers. By default they talk over loopback TCP without multicast
+scouting: the launcher listens on one endpoint, every worker connects to it and
+listens on a free port of its own; zenoh's gossip then links the peers directly, so
+the pipeline keeps running if the launcher goes away. Zenoh moves large payloads
+between processes of one host through its shared-memory transport by itself.
+"""
+from __future__ import annotations
+
+import json
+import socket
+from dataclasses import dataclass, field
+
+import zenoh
+
+from app.messages import EndOfStream, Message, MessageError, decode
+
+__all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "MessageError"]
+
+
+@dataclass
+class BusConfig:
+    """Where the session listens and connects (zenoh endpoint strings)."""
+
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
+    connect: list[str] = field(default_factory=list)
+    multicast: bool = False
+
+    def to_zenoh(self) -> zenoh.Config:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
+        return conf
+
+    def for_worker(self) -> "BusConfig":
+        """A worker connects to what the hub listens on and listens on a free port."""
+        return BusConfig(listen=["tcp/127.0.0.1:0"], connect=list(self.connect or self.listen),
+                         multicast=self.multicast)
+
+
+def free_port() -> int:
+    """A TCP port on loopback that nothing listens on right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def open_session(bus: BusConfig) -> zenoh.Session:
+    return zenoh.open(bus.to_zenoh())
+
+
+class Keys:
+    """Key expressions of one room."""
+
+    def __init__(self, room: str):
+        if not room or any(c in room for c in "/*$?#"):
+            raise ValueError(f"room name {room!r} must be a plain word")
+        self.root = f"smartroom/{room}"
+
+    def frame(self, camera: str = "*") -> str:
+        return f"{self.root}/frame/{camera}"
+
+    def mask(self, camera: str = "*") -> str:
+        return f"{self.root}/mask/{camera}"
+
+    def voxels(self) -> str:
+        return f"{self.root}/voxels"
+
+    def tracks(self) -> str:
+        return f"{self.root}/tracks"
+
+    def poses(self) -> str:
+        return f"{self.root}/poses"
+
+    def stats(self, worker: str = "*") -> str:
+        return f"{self.root}/stats/{worker}"
+
+    def eos(self, worker: str = "*") -> str:
+        return f"{self.root}/eos/{worker}"
+
+    def alive(self, worker: str = "*") -> str:
+        return f"{self.root}/alive/{worker}"
+
+    def stage(self, stage: str) -> str:
+        """The key expression of everything a stage publishes (``frame`` -> all cameras)."""
+        per_camera = {"frame": self.frame, "mask": self.mask}
+        if stage in per_camera:
+            return per_camera[stage]()
+        return f"{self.root}/{stage}"
+
+    @staticmethod
+    def last(key: str) -> str:
+        """The last chunk of a key (camera or worker name)."""
+        return str(key).rsplit("/", 1)[-1]
+
+
+class Publisher:
+    """A zenoh publisher of messages. Data uses ``DROP`` congestion control (a slow
+    consumer loses frames, never stalls the producer); control messages (end of
+    stream, final stats) use ``BLOCK`` so they always arrive."""
+
+    def __init__(self, session: zenoh.Session, key: str, droppable: bool = True):
+        cc = zenoh.CongestionControl.DROP if droppable else zenoh.CongestionControl.BLOCK
+        self.key = key
+        self._pub = session.declare_publisher(key, congestion_control=cc)
+
+    def put(self, msg: Message) -> int:
+        payload = msg.to_bytes()
+        self._pub.put(payload)
+        return len(payload)
+
+    def undeclare(self):
+        self._pub.undeclare()
+
+
+def decode_sample(sample) -> Message:
+    """Decode a zenoh sample's payload (raises :class:`MessageError`)."""
+    return decode(sample.payload.to_bytes())
+
+
+def is_end(msg: Message) -> bool:
+    return isinstance(msg, EndOfStream)

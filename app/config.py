@@ -1,0 +1,251 @@
+"""The one config loader: process layouts (which workers, with which parameters, where)
+and parameter overrides, validated at start with one-line errors.
+
+A layout is YAML::
+
+    room: smartroom                 # key prefix: smartroom/<room>/...
+    bus:                            # zenoh endpoints of the hub (the launcher's session)
+      listen: [tcp/127.0.0.1:0]     # port 0: a free port is chosen at start
+      multicast: false
+    workers:
+      - name: segmentation          # unique; `smartroom worker NAME` starts it alone
+        kind: segmentation          # which worker class (see workers.KINDS)
+        host: local                 # `smartroom run` starts only local workers
+        params: {history: 300}      # checked against the kind's DEFAULTS
+
+The launcher adds a ``run`` section (recording, out, frames, pace, headless) and
+writes the resolved layout next to the results, so every worker and every later
+reader sees exactly what ran.
+"""
+from __future__ import annotations
+
+import copy
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+from app.bus import BusConfig
+from app.errors import InputError
+
+__all__ = ["LayoutError", "WorkerSpec", "RunSpec", "Layout", "load_layout", "parse_layout",
+           "default_layout_path", "load_overrides", "apply_overrides", "parse_assignment"]
+
+LAYOUTS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "layouts"
+
+
+class LayoutError(InputError):
+    """A layout or parameter file is missing or malformed."""
+
+
+@dataclass
+class WorkerSpec:
+    name: str
+    kind: str
+    params: dict = field(default_factory=dict)
+    host: str = "local"
+    restart: bool = True
+
+    @property
+    def local(self) -> bool:
+        return self.host in ("local", "localhost", "127.0.0.1", os.uname().nodename)
+
+
+@dataclass
+class RunSpec:
+    """What the launcher was asked to do (not part of a layout file's own text)."""
+
+    recording: str | None = None
+    out: str | None = None
+    frames: int | None = None
+    pace: bool = True
+    headless: bool = False
+    live: list = field(default_factory=list)   # live camera sources, instead of a recording
+
+
+@dataclass
+class Layout:
+    room: str
+    bus: BusConfig
+    workers: list[WorkerSpec]
+    run: RunSpec = field(default_factory=RunSpec)
+    path: str = "layout.yaml"
+
+    def worker(self, name: str) -> WorkerSpec:
+        for w in self.workers:
+            if w.name == name:
+                return w
+        raise LayoutError(f"{self.path}: no worker named {name!r} (have {', '.join(w.name for w in self.workers)})")
+
+    def to_dict(self) -> dict:
+        return {
+            "room": self.room,
+            "bus": asdict(self.bus),
+            "workers": [asdict(w) for w in self.workers],
+            "run": asdict(self.run),
+        }
+
+    def save(self, path) -> None:
+        p = Path(path)
+        tmp = p.with_name(p.name + ".partial")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            yaml.safe_dump(self.to_dict(), fh, sort_keys=False)
+        os.replace(tmp, p)
+
+    def copy(self) -> "Layout":
+        return copy.deepcopy(self)
+
+
+def default_layout_path() -> Path:
+    return LAYOUTS_DIR / "local.yaml"
+
+
+def _check_params(kind_cls, params: dict, where: str) -> dict:
+    """Merge ``params`` over the kind's defaults, rejecting unknown names and wrong types."""
+    defaults = kind_cls.DEFAULTS
+    merged = copy.deepcopy(defaults)
+    for key, value in (params or {}).items():
+        if key not in defaults:
+            known = ", ".join(sorted(defaults)) or "none"
+            raise LayoutError(f"{where}: unknown parameter {key!r} (known: {known})")
+        merged[key] = _coerce(value, defaults[key], f"{where}: parameter {key}")
+    return merged
+
+
+def _coerce(value, default, where: str):
+    if default is None or value is None:
+        return value
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise LayoutError(f"{where} must be true or false, got {value!r}")
+    if isinstance(default, int):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise LayoutError(f"{where} must be an integer, got {value!r}")
+    if isinstance(default, float):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise LayoutError(f"{where} must be a number, got {value!r}")
+    if isinstance(default, str):
+        if isinstance(value, str):
+            return value
+        raise LayoutError(f"{where} must be a string, got {value!r}")
+    if isinstance(default, (list, tuple)):
+        if isinstance(value, (list, tuple)) or value == "all":
+            return value if value == "all" else list(value)
+        raise LayoutError(f"{where} must be a list, got {value!r}")
+    if isinstance(default, dict):
+        if isinstance(value, dict):
+            return value
+        raise LayoutError(f"{where} must be a mapping, got {value!r}")
+    return value
+
+
+def parse_layout(data, path: str = "layout.yaml") -> Layout:
+    """Validate a parsed layout document against the registered worker kinds."""
+    from workers import KINDS, worker_class
+
+    if not isinstance(data, dict):
+        raise LayoutError(f"{path}: expected a mapping with room, bus and workers")
+    unknown = set(data) - {"room", "bus", "workers", "run"}
+    if unknown:
+        raise LayoutError(f"{path}: unknown section {sorted(unknown)[0]!r} (known: room, bus, workers)")
+    room = data.get("room", "smartroom")
+    if not isinstance(room, str) or not room or any(c in room for c in "/*$?# "):
+        raise LayoutError(f"{path}: room must be a plain word, got {room!r}")
+    bus_d = data.get("bus") or {}
+    if not isinstance(bus_d, dict) or set(bus_d) - {"listen", "connect", "multicast"}:
+        raise LayoutError(f"{path}: bus takes listen, connect and multicast")
+    for key in ("listen", "connect"):
+        v = bus_d.get(key)
+        if v is not None and (not isinstance(v, list) or not all(isinstance(e, str) and "/" in e for e in v)):
+            raise LayoutError(f"{path}: bus.{key} must be a list of zenoh endpoints like tcp/127.0.0.1:7447")
+    bus = BusConfig(listen=bus_d.get("listen") or ["tcp/127.0.0.1:0"], connect=bus_d.get("connect") or [],
+                    multicast=bool(bus_d.get("multicast", False)))
+    entries = data.get("workers")
+    if not isinstance(entries, list) or not entries:
+        raise LayoutError(f"{path}: workers must be a non-empty list")
+    workers, names = [], set()
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict):
+            raise LayoutError(f"{path}: workers[{i}] is not a mapping")
+        extra = set(e) - {"name", "kind", "params", "host", "restart"}
+        if extra:
+            raise LayoutError(f"{path}: workers[{i}]: unknown key {sorted(extra)[0]!r}")
+        kind = e.get("kind")
+        name = e.get("name", kind)
+        if not isinstance(name, str) or not name or "/" in name or "*" in name:
+            raise LayoutError(f"{path}: workers[{i}]: name must be a plain word")
+        if kind not in KINDS:
+            raise LayoutError(f"{path}: worker {name}: unknown kind {kind!r} (known: {', '.join(sorted(KINDS))})")
+        if name in names:
+            raise LayoutError(f"{path}: worker name {name} appears more than once")
+        names.add(name)
+        params = e.get("params") or {}
+        if not isinstance(params, dict):
+            raise LayoutError(f"{path}: worker {name}: params must be a mapping")
+        merged = _check_params(worker_class(kind), params, f"{path}: worker {name}")
+        workers.append(WorkerSpec(name=name, kind=kind, params=merged, host=str(e.get("host", "local")),
+                                  restart=bool(e.get("restart", True))))
+    run = RunSpec(**(data.get("run") or {})) if isinstance(data.get("run"), dict) else RunSpec()
+    return Layout(room=room, bus=bus, workers=workers, run=run, path=path)
+
+
+def _read_yaml(path, what: str):
+    p = Path(path)
+    if not p.is_file():
+        raise LayoutError(f"{p}: {what} not found")
+    try:
+        with open(p, encoding="utf-8") as fh:
+            return yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        raise LayoutError(f"{p}: not valid YAML{line}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LayoutError(f"{p}: cannot be read ({exc.__class__.__name__})") from None
+
+
+def load_layout(path=None) -> Layout:
+    """Read and validate a layout file (default: ``deploy/layouts/local.yaml``)."""
+    p = Path(path) if path else default_layout_path()
+    return parse_layout(_read_yaml(p, "layout file"), str(p))
+
+
+def load_overrides(path) -> dict:
+    """A ``--config`` file: ``{worker name or kind: {param: value}}``."""
+    data = _read_yaml(path, "config file") or {}
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise LayoutError(f"{path}: expected a mapping of worker name or kind to parameters")
+    return data
+
+
+def parse_assignment(text: str) -> tuple[str, str, object]:
+    """``worker.param=value`` (value parsed as YAML) from ``--set``."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise LayoutError(f"--set {text}: expected WORKER.PARAM=VALUE")
+    lhs, rhs = text.split("=", 1)
+    target, param = lhs.rsplit(".", 1)
+    try:
+        value = yaml.safe_load(rhs)
+    except yaml.YAMLError:
+        raise LayoutError(f"--set {text}: value is not valid YAML") from None
+    return target, param, value
+
+
+def apply_overrides(layout: Layout, overrides: dict, source: str = "--config") -> Layout:
+    """Apply ``{worker name or kind: {param: value}}`` to a layout (validated)."""
+    from workers import worker_class
+
+    out = layout.copy()
+    for target, params in overrides.items():
+        hits = [w for w in out.workers if w.name == target or w.kind == target]
+        if not hits:
+            raise LayoutError(f"{source}: no worker or kind named {target!r} in {layout.path}")
+        for w in hits:
+            merged = dict(w.params)
+            merged.update(params)
+            w.params = _check_params(worker_class(w.kind), merged, f"{source}: worker {w.name}")
+    return out

@@ -1,0 +1,252 @@
+"""Recording folders (CONTRACT §1): reading them as if their cameras were live, and
+writing them (the simulator and ``smartroom record``).
+
+    <recording>/calibration.yaml
+    <recording>/videos/<cam>.mp4|.avi   or   <recording>/frames/<cam>/000000.png|.jpg
+    <recording>/background/<cam>.png    (optional)
+    <recording>/groundtruth.jsonl       (optional)
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from app.errors import InputError
+from calibration import Calibration, load_calibration, save_calibration
+
+__all__ = ["RecordingError", "Recording", "RecordingWriter", "VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS"]
+
+VIDEO_EXTENSIONS = (".mp4", ".avi")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
+
+
+class RecordingError(InputError):
+    """A recording folder is missing something or holds something malformed."""
+
+
+class _VideoSource:
+    def __init__(self, path: Path, camera, root: Path):
+        self.path, self.camera, self.shown = path, camera, str(path.relative_to(root))
+        self.cap = cv2.VideoCapture(str(path))
+        if not self.cap.isOpened():
+            raise RecordingError(f"{self.shown}: cannot be opened as a video")
+        self.count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.fps = float(self.cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        self.pos = 0
+
+    def read(self, index: int) -> np.ndarray | None:
+        if index != self.pos:
+            self.cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+            self.pos = index
+        ok, img = self.cap.read()
+        if not ok:
+            return None
+        self.pos += 1
+        return img
+
+    def close(self):
+        self.cap.release()
+
+
+class _ImageSource:
+    def __init__(self, folder: Path, camera, root: Path):
+        self.camera, self.root = camera, root
+        self.files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
+        self.shown = str(folder.relative_to(root))
+        if not self.files:
+            raise RecordingError(f"{self.shown}: holds no .png or .jpg images")
+        self.count = len(self.files)
+        self.fps = 0.0
+
+    def read(self, index: int) -> np.ndarray | None:
+        if index >= self.count:
+            return None
+        img = cv2.imread(str(self.files[index]), cv2.IMREAD_COLOR)
+        if img is None:
+            raise RecordingError(f"{self.files[index].relative_to(self.root)}: cannot be read as an image")
+        return img
+
+    def close(self):
+        pass
+
+
+class Recording:
+    """A recording folder, validated on opening."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise RecordingError(f"{self.path}: recording folder not found")
+        self.calibration: Calibration = load_calibration(self.path / "calibration.yaml")
+        self.fps = self.calibration.fps
+        self._sources = {}
+        for cam in self.calibration.cameras:
+            self._sources[cam.name] = self._find_source(cam.name)
+        counts = {name: self._count(name) for name in self._sources}
+        self.frame_count = min(counts.values())
+        first = next(iter(counts))
+        for name, n in counts.items():
+            if n != counts[first]:
+                raise RecordingError(f"{self.path / self._sources[name][1]}: {n} frames, but {first} has {counts[first]}")
+
+    def _find_source(self, cam: str):
+        for ext in VIDEO_EXTENSIONS:
+            p = self.path / "videos" / f"{cam}{ext}"
+            if p.is_file():
+                return ("video", p.relative_to(self.path))
+        d = self.path / "frames" / cam
+        if d.is_dir():
+            return ("frames", d.relative_to(self.path))
+        raise RecordingError(f"{self.path}: camera {cam} has no videos/{cam}.mp4 (or .avi) and no frames/{cam}/ folder")
+
+    def _open(self, cam: str):
+        kind, rel = self._sources[cam]
+        if kind == "video":
+            return _VideoSource(self.path / rel, cam, self.path)
+        return _ImageSource(self.path / rel, cam, self.path)
+
+    def _count(self, cam: str) -> int:
+        src = self._open(cam)
+        try:
+            return src.count
+        finally:
+            src.close()
+
+    @property
+    def cameras(self) -> list[str]:
+        return self.calibration.names
+
+    def frames(self, cameras=None, start: int = 0, stop: int | None = None):
+        """Yield ``(index, {camera: BGR image})`` from ``start`` up to ``stop`` (exclusive).
+
+        Raises :class:`RecordingError` naming the file when a frame has the wrong size.
+        """
+        names = list(cameras) if cameras else self.cameras
+        stop = self.frame_count if stop is None else min(stop, self.frame_count)
+        sources = {n: self._open(n) for n in names}
+        try:
+            for i in range(start, stop):
+                images = {}
+                for n, src in sources.items():
+                    img = src.read(i)
+                    if img is None:
+                        return  # a video shorter than its announced count ends the stream
+                    self.check_image(n, img, src.shown)
+                    images[n] = img
+                yield i, images
+        finally:
+            for src in sources.values():
+                src.close()
+
+    def check_image(self, cam: str, img: np.ndarray, shown: str) -> None:
+        c = self.calibration.camera(cam)
+        if img.ndim != 3 or img.shape[:2] != (c.height, c.width) or img.shape[2] != 3:
+            got = f"{img.shape[1]}x{img.shape[0]}" if img.ndim >= 2 else str(img.shape)
+            raise RecordingError(f"{shown}: frame size {got} does not match calibration {c.width}x{c.height} of camera {cam}")
+
+    def background(self, cam: str) -> np.ndarray | None:
+        """The empty-room image of a camera, if the recording has one."""
+        for ext in IMAGE_EXTENSIONS:
+            p = self.path / "background" / f"{cam}{ext}"
+            if p.is_file():
+                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+                if img is None:
+                    raise RecordingError(f"{p.relative_to(self.path)}: cannot be read as an image")
+                self.check_image(cam, img, str(p.relative_to(self.path)))
+                return img
+        return None
+
+    def groundtruth(self) -> list[dict] | None:
+        """The parsed ``groundtruth.jsonl`` (one object per frame), or None."""
+        p = self.path / "groundtruth.jsonl"
+        if not p.is_file():
+            return None
+        out = []
+        with open(p, encoding="utf-8") as fh:
+            for n, line in enumerate(fh, 1):
+                if line.strip():
+                    try:
+                        out.append(json.loads(line))
+                    except json.JSONDecodeError:
+                        raise RecordingError(f"{p.name}: line {n} is not valid JSON") from None
+        return out
+
+
+class RecordingWriter:
+    """Write a recording folder: into ``<path>.partial`` first, renamed on :meth:`close`,
+    so a folder with the final name is always complete."""
+
+    def __init__(self, path, calibration: Calibration, codec: str = "mp4v", overwrite: bool = False):
+        self.path = Path(path)
+        if self.path.exists() and not overwrite:
+            raise RecordingError(f"{self.path}: already exists (choose another --out or remove it)")
+        self.tmp = self.path.with_name(self.path.name + ".partial")
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        (self.tmp / "videos").mkdir(parents=True)
+        self.calibration = calibration
+        self.codec = codec
+        self._writers: dict[str, cv2.VideoWriter] = {}
+        self._gt = None
+        self.frames = 0
+        save_calibration(calibration, self.tmp / "calibration.yaml")
+
+    def write(self, images: dict) -> None:
+        """One frame of every camera (BGR uint8 at the calibrated size)."""
+        for cam in self.calibration.cameras:
+            img = images[cam.name]
+            w = self._writers.get(cam.name)
+            if w is None:
+                ext = ".avi" if self.codec in ("MJPG", "XVID") else ".mp4"
+                w = cv2.VideoWriter(str(self.tmp / "videos" / f"{cam.name}{ext}"),
+                                    cv2.VideoWriter_fourcc(*self.codec), float(self.calibration.fps),
+                                    (cam.width, cam.height))
+                if not w.isOpened():
+                    raise RecordingError(f"cannot write {self.codec} video for camera {cam.name}")
+                self._writers[cam.name] = w
+            w.write(np.ascontiguousarray(img))
+        self.frames += 1
+
+    def write_background(self, cam: str, image: np.ndarray) -> None:
+        (self.tmp / "background").mkdir(exist_ok=True)
+        cv2.imwrite(str(self.tmp / "background" / f"{cam}.png"), image)
+
+    def write_groundtruth(self, record: dict) -> None:
+        if self._gt is None:
+            self._gt = open(self.tmp / "groundtruth.jsonl", "w", encoding="utf-8")
+        self._gt.write(json.dumps(record, separators=(",", ":")) + "\n")
+
+    def file(self, name: str) -> Path:
+        """Path of an extra file inside the recording being written."""
+        return self.tmp / name
+
+    def close(self) -> Path:
+        for w in self._writers.values():
+            w.release()
+        if self._gt is not None:
+            self._gt.close()
+        if self.path.exists():
+            shutil.rmtree(self.path)
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        for w in self._writers.values():
+            w.release()
+        if self._gt is not None:
+            self._gt.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -1,0 +1,212 @@
+"""Per-stage accounting: which frames came in and went out, latency from capture,
+processing time, rates and CPU use. Pure Python; the worker base feeds it and
+publishes :meth:`StageLedger.figures` once a second.
+
+Definitions (CONTRACT §2, extended):
+
+- ``frames_in``: distinct frame indices the stage received;
+- ``frames_out``: distinct frame indices it published a result for;
+- ``frames_dropped``: received but not published (``in - out`` at the end; during a
+  run, only frames older than the newest output count);
+- ``frames_missing``: produced by the source but never received here (known at the
+  end of the stream), so ``frames_in + frames_missing`` is the source's frame count;
+- latency: wall-clock time from the frame's capture to the stage's output.
+"""
+from __future__ import annotations
+
+import os
+import time
+from collections import deque
+
+import numpy as np
+
+__all__ = ["StageLedger", "summarise", "percentiles"]
+
+WINDOW_S = 2.0
+
+
+def percentiles(values_ms) -> dict:
+    """``{"mean", "p50", "p95", "max"}`` of a list of milliseconds (zeros when empty)."""
+    a = np.asarray(values_ms, dtype=np.float64)
+    if a.size == 0:
+        return {"mean": 0.0, "p50": 0.0, "p95": 0.0, "max": 0.0}
+    p50, p95 = np.percentile(a, [50, 95])
+    return {"mean": round(float(a.mean()), 3), "p50": round(float(p50), 3),
+            "p95": round(float(p95), 3), "max": round(float(a.max()), 3)}
+
+
+class _FrameSet:
+    """A growable bitmap of frame indices (cheap for hours of frames)."""
+
+    def __init__(self):
+        self.bits = bytearray()
+        self.count = 0
+
+    def add(self, i: int) -> bool:
+        if i < 0:
+            return False
+        if i >= len(self.bits):
+            self.bits.extend(b"\0" * max(i + 1 - len(self.bits), len(self.bits), 1024))
+        if self.bits[i]:
+            return False
+        self.bits[i] = 1
+        self.count += 1
+        return True
+
+    def __contains__(self, i: int) -> bool:
+        return 0 <= i < len(self.bits) and bool(self.bits[i])
+
+    def count_below(self, i: int) -> int:
+        return self.bits[:max(0, i)].count(1)
+
+
+class StageLedger:
+    """Counts, latencies and timings of one worker."""
+
+    def __init__(self, clock=time.time):
+        self.clock = clock
+        self.seen = _FrameSet()
+        self.done = _FrameSet()
+        self.items_in = 0
+        self.items_out = 0
+        self.items_dropped = 0
+        self.bad_messages = 0
+        self.latency_ms: list[float] = []
+        self.process_ms: list[float] = []
+        self.first_stamp = None
+        self.first_in = None
+        self.last_emit = None
+        self.last_frame = -1
+        self.newest_out = -1
+        self._events = deque()      # (time, kind, latency_ms) for the rate window
+        self._busy = deque()        # (end time, seconds busy)
+        self._cpu0 = (time.monotonic(), time.process_time())
+        self.started = clock()
+
+    # -- feeding ------------------------------------------------------------------
+    def received(self, frame: int, stamp: float) -> None:
+        now = self.clock()
+        self.items_in += 1
+        if self.first_in is None:
+            self.first_in = now
+        if stamp and (self.first_stamp is None or stamp < self.first_stamp):
+            self.first_stamp = stamp
+        if self.seen.add(frame):
+            self._events.append((now, "in", 0.0))
+        self.last_frame = max(self.last_frame, frame)
+
+    def emitted(self, frame: int, stamp: float) -> None:
+        now = self.clock()
+        self.items_out += 1
+        self.last_emit = now
+        if self.done.add(frame):
+            lat = (now - stamp) * 1e3 if stamp else 0.0
+            self.latency_ms.append(lat)
+            self._events.append((now, "out", lat))
+            self.newest_out = max(self.newest_out, frame)
+
+    def processed(self, seconds: float) -> None:
+        self.process_ms.append(seconds * 1e3)
+        self._busy.append((self.clock(), seconds))
+
+    def dropped_item(self, n: int = 1) -> None:
+        self.items_dropped += n
+
+    def bad_message(self) -> None:
+        self.bad_messages += 1
+
+    # -- reading ------------------------------------------------------------------
+    def _trim(self, now: float) -> None:
+        while self._events and self._events[0][0] < now - WINDOW_S:
+            self._events.popleft()
+        while self._busy and self._busy[0][0] < now - WINDOW_S:
+            self._busy.popleft()
+
+    def figures(self, final: bool = False, expected: int | None = None, first: int = 0) -> dict:
+        """The stage's figures now; ``expected`` frames from ``first`` (the source's count)
+        turns never-received frames into ``frames_missing``."""
+        now = self.clock()
+        self._trim(now)
+        span = min(WINDOW_S, max(1e-6, now - self.started))
+        win_in = sum(1 for e in self._events if e[1] == "in")
+        win_lat = [e[2] for e in self._events if e[1] == "out"]
+        frames_in, frames_out = self.seen.count, self.done.count
+        if final:
+            dropped = frames_in - frames_out
+        else:
+            dropped = self.seen.count_below(self.newest_out) - self.done.count_below(self.newest_out)
+        mono, cpu = time.monotonic(), time.process_time()
+        cpu_percent = 100.0 * (cpu - self._cpu0[1]) / max(1e-6, mono - self._cpu0[0])
+        self._cpu0 = (mono, cpu)
+        active = None
+        if self.first_stamp is not None and self.last_emit is not None:
+            active = self.last_emit - self.first_stamp
+        fig = {
+            "frames_in": frames_in,
+            "frames_out": frames_out,
+            "frames_dropped": max(0, dropped),
+            "frames_missing": max(0, expected - frames_in) if (final and expected is not None) else 0,
+            "items_in": self.items_in,
+            "items_out": self.items_out,
+            "items_dropped": self.items_dropped,
+            "bad_messages": self.bad_messages,
+            "fps_in": round(win_in / span, 3),
+            "fps_out": round(len(win_lat) / span, 3),
+            "fps": round(frames_out / active, 3) if active and frames_out > 1 else 0.0,
+            "latency_ms": percentiles(self.latency_ms),
+            "latency_window_ms": percentiles(win_lat),
+            "process_ms": percentiles(self.process_ms),
+            "busy": round(min(1.0, sum(b[1] for b in self._busy) / span), 3),
+            "cpu_percent": round(cpu_percent, 1),
+            "last_frame": self.last_frame,
+            "first_stamp": self.first_stamp,
+            "last_emit": self.last_emit,
+            "elapsed_s": round(now - self.started, 3),
+            "pid": os.getpid(),
+            "host": os.uname().nodename,
+        }
+        return fig
+
+
+def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> dict:
+    """The pipeline summary of ``stats.json`` from each worker's last figures.
+
+    ``stages`` maps worker name to ``{"stage", "order", "figures"}``. The pipeline's
+    throughput is that of the deepest processing stage: frames it put out over the
+    wall time from the first capture to its last output; the real-time factor is
+    ``RTF = fps / f_R`` (thesis Eq. 4.27).
+    """
+    per_stage, deepest = {}, None
+    for name, s in stages.items():
+        f = s["figures"]
+        per_stage[name] = {
+            "stage": s.get("stage", name),
+            "order": s.get("order"),
+            "frames_in": f.get("frames_in", 0),
+            "frames_out": f.get("frames_out", 0),
+            "frames_dropped": f.get("frames_dropped", 0),
+            "frames_missing": f.get("frames_missing", 0),
+            "latency_mean_ms": f.get("latency_ms", {}).get("mean", 0.0),
+            "latency_p50_ms": f.get("latency_ms", {}).get("p50", 0.0),
+            "latency_p95_ms": f.get("latency_ms", {}).get("p95", 0.0),
+            "process_mean_ms": f.get("process_ms", {}).get("mean", 0.0),
+            "process_p95_ms": f.get("process_ms", {}).get("p95", 0.0),
+            "fps": f.get("fps", 0.0),
+            "cpu_percent": f.get("cpu_percent", 0.0),
+            "bad_messages": f.get("bad_messages", 0),
+            "final": bool(s.get("final", False)),
+        }
+        order = s.get("order")
+        if order is not None and (deepest is None or order > stages[deepest]["order"]):
+            deepest = name
+    out = {"recording_fps": recording_fps, "frames": frames, "stages": per_stage}
+    if deepest is not None:
+        f = stages[deepest]["figures"]
+        fps = f.get("fps", 0.0)
+        out.update({
+            "final_stage": deepest,
+            "fps": fps,
+            "rtf": round(fps / recording_fps, 4) if recording_fps else None,
+            "end_to_end_latency_ms": f.get("latency_ms", {}),
+        })
+    return out

@@ -1,0 +1,158 @@
+"""Load, validate and write the contract's ``calibration.yaml`` (CONTRACT.md §1).
+
+Every problem raises :class:`CalibrationError` with a one-line message naming the
+file, the camera and the field, e.g.
+``calibration.yaml: camera cam2: R is not a rotation (det -1.0)``.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from app.errors import InputError
+from calibration.camera import Camera
+
+__all__ = ["Calibration", "CalibrationError", "load_calibration", "save_calibration"]
+
+
+class CalibrationError(InputError):
+    """A calibration file is missing or malformed."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A calibrated room: recording fps, analysed volume and cameras."""
+
+    fps: float
+    room_min: np.ndarray
+    room_max: np.ndarray
+    cameras: tuple[Camera, ...]
+    path: str = "calibration.yaml"
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def camera(self, name: str) -> Camera:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise CalibrationError(f"{self.path}: unknown camera {name!r} (have {', '.join(self.names)})")
+
+    def select(self, names) -> "Calibration":
+        """The same room with only the named cameras (in the given order)."""
+        return Calibration(self.fps, self.room_min, self.room_max,
+                           tuple(self.camera(n) for n in names), self.path)
+
+    def to_dict(self) -> dict:
+        return {
+            "fps": float(self.fps),
+            "room": {"min": [float(v) for v in self.room_min], "max": [float(v) for v in self.room_max]},
+            "cameras": [c.to_dict() for c in self.cameras],
+        }
+
+
+def _matrix(value, shape, where: str, field: str) -> np.ndarray:
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: {field} is not a numeric array") from None
+    if m.shape != shape:
+        want = "x".join(str(s) for s in shape)
+        got = "x".join(str(s) for s in m.shape) or "a scalar"
+        raise CalibrationError(f"{where}: {field} must be {want}, got {got}")
+    if not np.all(np.isfinite(m)):
+        raise CalibrationError(f"{where}: {field} has non-finite values")
+    return m
+
+
+def _camera(entry, index: int, path: str) -> Camera:
+    if not isinstance(entry, dict):
+        raise CalibrationError(f"{path}: cameras[{index}] is not a mapping")
+    name = entry.get("name")
+    if not isinstance(name, str) or not name:
+        raise CalibrationError(f"{path}: cameras[{index}]: name is missing")
+    where = f"{path}: camera {name}"
+    for key in ("width", "height", "K", "R", "t"):
+        if key not in entry:
+            raise CalibrationError(f"{where}: {key} is missing")
+    width, height = entry["width"], entry["height"]
+    for key, v in (("width", width), ("height", height)):
+        if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+            raise CalibrationError(f"{where}: {key} must be a positive integer, got {v!r}")
+    K = _matrix(entry["K"], (3, 3), where, "K")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+        raise CalibrationError(f"{where}: K is not an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0")
+    dist = entry.get("dist") or [0.0] * 5
+    try:
+        dist = np.asarray(dist, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: dist is not a numeric list") from None
+    if dist.size not in (4, 5) or not np.all(np.isfinite(dist)):
+        raise CalibrationError(f"{where}: dist must list k1, k2, p1, p2[, k3], got {dist.size} values")
+    R = _matrix(entry["R"], (3, 3), where, "R")
+    det = float(np.linalg.det(R))
+    if abs(det - 1.0) > 1e-3 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
+        raise CalibrationError(f"{where}: R is not a rotation (det {det:.1f})")
+    t = _matrix(entry["t"], (3,), where, "t")
+    return Camera(name=name, width=width, height=height, K=K, dist=dist, R=R, t=t)
+
+
+def parse_calibration(data, path: str = "calibration.yaml") -> Calibration:
+    """Validate an already-parsed calibration document."""
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{path}: expected a mapping with fps, room and cameras")
+    fps = data.get("fps")
+    if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not fps > 0:
+        raise CalibrationError(f"{path}: fps must be a positive number, got {fps!r}")
+    room = data.get("room")
+    if not isinstance(room, dict) or "min" not in room or "max" not in room:
+        raise CalibrationError(f"{path}: room must have min and max corners")
+    rmin = _matrix(room["min"], (3,), path, "room.min")
+    rmax = _matrix(room["max"], (3,), path, "room.max")
+    if not np.all(rmax > rmin):
+        raise CalibrationError(f"{path}: room.max must exceed room.min on every axis")
+    cams = data.get("cameras")
+    if not isinstance(cams, list) or not cams:
+        raise CalibrationError(f"{path}: cameras must be a non-empty list")
+    cameras = tuple(_camera(c, i, path) for i, c in enumerate(cams))
+    names = [c.name for c in cameras]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise CalibrationError(f"{path}: camera name {dupes[0]} appears more than once")
+    return Calibration(float(fps), rmin, rmax, cameras, path)
+
+
+def load_calibration(path) -> Calibration:
+    """Read and validate ``calibration.yaml`` (a file or a recording folder)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "calibration.yaml"
+    shown = str(p)
+    if not p.is_file():
+        raise CalibrationError(f"{shown}: file not found")
+    try:
+        with open(p, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        raise CalibrationError(f"{shown}: not valid YAML{line}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{shown}: cannot be read ({exc.__class__.__name__})") from None
+    return parse_calibration(data, shown)
+
+
+def save_calibration(calib: Calibration, path) -> None:
+    """Write ``calibration.yaml`` (write, then rename)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "calibration.yaml"
+    tmp = p.with_name(p.name + ".partial")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        yaml.safe_dump(calib.to_dict(), fh, sort_keys=False, default_flow_style=None, width=120)
+    os.replace(tmp, p)

@@ -1,0 +1,50 @@
+"""Worker kinds (thin shells over the algorithm cores) and how they connect.
+
+Kinds are imported lazily so that the launcher and the CLI start fast.
+"""
+from __future__ import annotations
+
+import importlib
+
+__all__ = ["KINDS", "worker_class", "upstream_of"]
+
+KINDS = {
+    "grabber": "workers.grabber:Grabber",
+    "segmentation": "workers.segmentation:Segmentation",
+    "recorder": "workers.recorder:Recorder",
+}
+
+
+def worker_class(kind: str):
+    module, _, cls = KINDS[kind].partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def _cameras(spec):
+    cams = spec.params.get("cameras")
+    return None if cams in (None, "all") else set(cams)
+
+
+def upstream_of(layout, spec) -> list[str]:
+    """Workers of ``layout`` whose end of stream ``spec`` waits for: those producing a
+    stage it consumes (per-camera stages only where the camera sets meet) and, for a
+    worker that consumes ``stats``, every worker that is not a sink."""
+    me = worker_class(spec.kind)
+    mine = _cameras(spec)
+    names = []
+    for other in layout.workers:
+        if other.name == spec.name:
+            continue
+        cls = worker_class(other.kind)
+        if not cls.PRODUCES:
+            continue  # sinks are nobody's upstream
+        if "stats" in me.CONSUMES:
+            names.append(other.name)
+            continue
+        for stage in set(cls.PRODUCES) & set(me.CONSUMES):
+            theirs = _cameras(other)
+            if stage in me.PER_CAMERA and mine is not None and theirs is not None and not (mine & theirs):
+                continue
+            names.append(other.name)
+            break
+    return names
