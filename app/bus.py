@@ -27,6 +27,7 @@ class BusConfig:
     listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
     connect: list[str] = field(default_factory=list)
     multicast: bool = False
+    shm: bool = True    # zenoh's shared-memory transport between processes of one host
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config()
@@ -34,12 +35,13 @@ class BusConfig:
         conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
+        conf.insert_json5("transport/shared_memory/enabled", "true" if self.shm else "false")
         return conf
 
     def for_worker(self) -> "BusConfig":
         """A worker connects to what the hub listens on and listens on a free port."""
         return BusConfig(listen=["tcp/127.0.0.1:0"], connect=list(self.connect or self.listen),
-                         multicast=self.multicast)
+                         multicast=self.multicast, shm=self.shm)
 
 
 def free_port() -> int:
@@ -81,6 +83,9 @@ class Keys:
 
     def eos(self, worker: str = "*") -> str:
         return f"{self.root}/eos/{worker}"
+
+    def ack(self, worker: str = "*") -> str:
+        return f"{self.root}/ack/{worker}"
 
     def alive(self, worker: str = "*") -> str:
         return f"{self.root}/alive/{worker}"

@@ -57,6 +57,8 @@ class RunSpec:
     """What the launcher was asked to do (not part of a layout file's own text)."""
 
     recording: str | None = None
+    calibration: str | None = None             # calibration file (live cameras)
+    fps: float | None = None                   # the source's frame rate
     out: str | None = None
     frames: int | None = None
     pace: bool = True
@@ -116,6 +118,10 @@ def _check_params(kind_cls, params: dict, where: str) -> dict:
 def _coerce(value, default, where: str):
     if default is None or value is None:
         return value
+    if default == "all":  # a set of cameras: all, or a list of names
+        if value == "all" or (isinstance(value, list) and value and all(isinstance(v, str) for v in value)):
+            return value
+        raise LayoutError(f"{where} must be all or a list of camera names, got {value!r}")
     if isinstance(default, bool):
         if isinstance(value, bool):
             return value
@@ -133,8 +139,8 @@ def _coerce(value, default, where: str):
             return value
         raise LayoutError(f"{where} must be a string, got {value!r}")
     if isinstance(default, (list, tuple)):
-        if isinstance(value, (list, tuple)) or value == "all":
-            return value if value == "all" else list(value)
+        if isinstance(value, (list, tuple)):
+            return list(value)
         raise LayoutError(f"{where} must be a list, got {value!r}")
     if isinstance(default, dict):
         if isinstance(value, dict):
@@ -156,14 +162,14 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
     if not isinstance(room, str) or not room or any(c in room for c in "/*$?# "):
         raise LayoutError(f"{path}: room must be a plain word, got {room!r}")
     bus_d = data.get("bus") or {}
-    if not isinstance(bus_d, dict) or set(bus_d) - {"listen", "connect", "multicast"}:
-        raise LayoutError(f"{path}: bus takes listen, connect and multicast")
+    if not isinstance(bus_d, dict) or set(bus_d) - {"listen", "connect", "multicast", "shm"}:
+        raise LayoutError(f"{path}: bus takes listen, connect, multicast and shm")
     for key in ("listen", "connect"):
         v = bus_d.get(key)
         if v is not None and (not isinstance(v, list) or not all(isinstance(e, str) and "/" in e for e in v)):
             raise LayoutError(f"{path}: bus.{key} must be a list of zenoh endpoints like tcp/127.0.0.1:7447")
     bus = BusConfig(listen=bus_d.get("listen") or ["tcp/127.0.0.1:0"], connect=bus_d.get("connect") or [],
-                    multicast=bool(bus_d.get("multicast", False)))
+                    multicast=bool(bus_d.get("multicast", False)), shm=bool(bus_d.get("shm", True)))
     entries = data.get("workers")
     if not isinstance(entries, list) or not entries:
         raise LayoutError(f"{path}: workers must be a non-empty list")

@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = [
     "MessageError", "Message", "Frame", "Mask", "Voxels", "Tracks", "Poses", "Stats",
-    "EndOfStream", "encode", "decode", "JOINTS",
+    "EndOfStream", "Ack", "encode", "decode", "JOINTS",
 ]
 
 MAGIC = b"SRM"
@@ -263,7 +263,8 @@ class Stats(Message):
 @dataclass(kw_only=True)
 class EndOfStream(Message):
     """A worker has handled its last frame. ``frames`` is how many frames the source
-    produced (indices ``0..frames-1`` offset by ``first``) and ``fps`` its rate."""
+    produced (indices ``first .. first+frames-1``), ``fps`` its rate, and ``figures``
+    the worker's final stats (one message, so no consumer sees one without the other)."""
 
     TYPE_ID: ClassVar[int] = 7
     worker: str = ""
@@ -271,3 +272,12 @@ class EndOfStream(Message):
     frames: int = 0
     first: int = 0
     fps: float = 0.0
+    figures: dict = field(default_factory=dict)
+
+
+@dataclass(kw_only=True)
+class Ack(Message):
+    """A stage has handled frame ``frame`` (flow control of an unpaced source)."""
+
+    TYPE_ID: ClassVar[int] = 8
+    worker: str = ""

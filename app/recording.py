@@ -37,6 +37,7 @@ class _VideoSource:
             raise RecordingError(f"{self.shown}: cannot be opened as a video")
         self.count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
         self.fps = float(self.cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        self.size = (int(self.cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
         self.pos = 0
 
     def read(self, index: int) -> np.ndarray | None:
@@ -62,6 +63,10 @@ class _ImageSource:
             raise RecordingError(f"{self.shown}: holds no .png or .jpg images")
         self.count = len(self.files)
         self.fps = 0.0
+        first = cv2.imread(str(self.files[0]), cv2.IMREAD_UNCHANGED)
+        if first is None:
+            raise RecordingError(f"{self.files[0].relative_to(root)}: cannot be read as an image")
+        self.size = (first.shape[1], first.shape[0])
 
     def read(self, index: int) -> np.ndarray | None:
         if index >= self.count:
@@ -111,8 +116,13 @@ class Recording:
         return _ImageSource(self.path / rel, cam, self.path)
 
     def _count(self, cam: str) -> int:
+        """Frame count of a camera's source, whose frame size is checked on the way."""
         src = self._open(cam)
         try:
+            c = self.calibration.camera(cam)
+            if src.size != (c.width, c.height):
+                raise RecordingError(f"{src.shown}: frame size {src.size[0]}x{src.size[1]} does not match "
+                                     f"calibration {c.width}x{c.height} of camera {cam}")
             return src.count
         finally:
             src.close()

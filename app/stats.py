@@ -152,7 +152,8 @@ class StageLedger:
             "bad_messages": self.bad_messages,
             "fps_in": round(win_in / span, 3),
             "fps_out": round(len(win_lat) / span, 3),
-            "fps": round(frames_out / active, 3) if active and frames_out > 1 else 0.0,
+            # N frames span N-1 frame intervals from the first capture to the last output
+            "fps": round((frames_out - 1) / active, 3) if active and frames_out > 1 else 0.0,
             "latency_ms": percentiles(self.latency_ms),
             "latency_window_ms": percentiles(win_lat),
             "process_ms": percentiles(self.process_ms),
@@ -165,6 +166,9 @@ class StageLedger:
             "pid": os.getpid(),
             "host": os.uname().nodename,
         }
+        if final:
+            fig["missing_frames"] = [i for i in range(first, first + (expected or 0)) if i not in self.seen][:50]
+            fig["dropped_frames"] = [i for i in range(len(self.seen.bits)) if i in self.seen and i not in self.done][:50]
         return fig
 
 

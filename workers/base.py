@@ -23,12 +23,13 @@ from typing import ClassVar
 
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.config import Layout, WorkerSpec
-from app.messages import EndOfStream, Message, MessageError, Stats
+from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 
 __all__ = ["Worker", "Inbox"]
 
 STATS_PERIOD_S = 1.0
+END_GRACE_S = 0.3
 
 
 class Inbox:
@@ -206,24 +207,30 @@ class Worker:
             self.log.warning("bad control message on %s: %s", sample.key_expr, exc)
             return
         if isinstance(msg, EndOfStream):
+            if "stats" in self.CONSUMES:  # the end of stream carries the worker's final figures
+                self.on_stats(Stats(frame=msg.frame, stamp=msg.stamp, worker=msg.worker, stage=msg.stage,
+                                    final=True, figures=msg.figures))
             if msg.worker in self._wait_for and msg.worker not in self._upstream_done:
-                self._upstream_done[msg.worker] = msg
                 if self._source_eos is None or msg.frames > self._source_eos.frames:
                     self._source_eos = msg
                 self.on_end(msg)
+                self._upstream_done[msg.worker] = msg
                 self.inbox.wake()
         elif isinstance(msg, Stats):
             self.on_stats(msg)
 
-    def _publish_stats(self, final: bool = False) -> None:
+    def _figures(self, final: bool = False) -> dict:
         frames, first, _ = self.stream_info()
         known = self._source_eos is not None or self.is_source
         figures = self.ledger.figures(final=final, expected=frames if known else None, first=first)
         figures["order"] = self.ORDER
         figures.update(self.extra_figures())
+        return figures
+
+    def _publish_stats(self) -> None:
         self._control_pub(self.keys.stats(self.name)).put(
             Stats(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
-                  stage=self.stage, final=final, figures=figures))
+                  stage=self.stage, final=False, figures=self._figures()))
         self._last_stats = time.monotonic()
 
     def _control_pub(self, key: str) -> Publisher:
@@ -241,9 +248,21 @@ class Worker:
         if time.monotonic() - self._last_stats >= STATS_PERIOD_S:
             self._publish_stats()
 
+    def _ended(self) -> bool:
+        """Every upstream worker has ended and nothing came for ``END_GRACE_S`` since:
+        data and end of stream travel on different keys, so the last data may trail."""
+        if not self._wait_for or len(self._upstream_done) < len(self._wait_for) or self.inbox.pending():
+            self._quiet_since = None
+            return False
+        now = time.monotonic()
+        if self._quiet_since is None:
+            self._quiet_since = now
+        return now - self._quiet_since >= END_GRACE_S
+
     def _loop_filter(self) -> None:
+        self._quiet_since = None
         while not self.stopping:
-            item = self.inbox.get(timeout=0.1)
+            item = self.inbox.get(timeout=0.05)
             if item is not None:
                 key, sample = item
                 try:
@@ -256,7 +275,9 @@ class Worker:
                 t0 = time.perf_counter()
                 self.handle(key, msg)
                 self.ledger.processed(time.perf_counter() - t0)
-            elif self._wait_for and len(self._upstream_done) == len(self._wait_for) and not self.inbox.pending():
+                if self._ack is not None:
+                    self._ack.put(Ack(frame=msg.frame, stamp=msg.stamp, worker=self.name))
+            elif self._ended():
                 break
             self._maybe_stats()
 
@@ -281,6 +302,10 @@ class Worker:
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             if "stats" in self.CONSUMES:
                 self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
+            # an unpaced source sends frames as fast as the stages acknowledge them
+            self._ack = None
+            if not self.layout.run.pace and self.ORDER and self.PRODUCES:
+                self._ack = Publisher(self.session, self.keys.ack(self.name), droppable=False)
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
             self.log.info("ready (%s)", ", ".join(self.subscriptions()) or "source")
             if self.is_source:
@@ -298,12 +323,16 @@ class Worker:
         finally:
             if self.session is not None and not self.session.is_closed():
                 try:
-                    self._publish_stats(final=True)
-                    if self.PRODUCES:
+                    figures = self._figures(final=True)
+                    if self.PRODUCES:  # the end of stream carries the final figures
                         frames, first, fps = self.stream_info()
                         self._control_pub(self.keys.eos(self.name)).put(
                             EndOfStream(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
-                                        stage=self.stage, frames=frames, first=first, fps=fps))
+                                        stage=self.stage, frames=frames, first=first, fps=fps, figures=figures))
+                    else:
+                        self._control_pub(self.keys.stats(self.name)).put(
+                            Stats(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
+                                  stage=self.stage, final=True, figures=figures))
                     time.sleep(0.2)  # let the last messages leave before the session closes
                 finally:
                     for s in self._subs:

@@ -1,0 +1,1 @@
+"""Benchmarks behind ``smartroom bench``: speed is measured here, never in unit tests."""

@@ -1,0 +1,76 @@
+"""Options shared by the verbs that run a pipeline (run, bench), resolved in one place."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from app.config import RunSpec, apply_overrides, load_layout, load_overrides, parse_assignment
+from app.errors import InputError
+
+DEFAULT_SCENE = "meeting3"
+
+
+def add_pipeline_arguments(p, source: bool = True) -> None:
+    if source:
+        p.add_argument("--recording", metavar="DIR", help="recording folder (default: the built-in simulated room)")
+        p.add_argument("--scene", default=DEFAULT_SCENE,
+                       help=f"simulated scene used when no --recording is given (default {DEFAULT_SCENE})")
+        p.add_argument("--seconds", type=float, default=10.0, help="length of the simulated scene (default 10)")
+        p.add_argument("--live", action="append", metavar="CAM=SRC",
+                       help="live camera: a cv2.VideoCapture device index or URL (repeat per camera)")
+        p.add_argument("--calibration", metavar="FILE", help="calibration.yaml of the live cameras")
+    p.add_argument("--layout", metavar="FILE", help="process layout YAML (default deploy/layouts/local.yaml)")
+    p.add_argument("--config", metavar="FILE", help="parameter overrides: {worker name or kind: {param: value}}")
+    p.add_argument("--set", action="append", default=[], metavar="W.P=V",
+                   help="override one parameter, e.g. --set segmentation.history=300 (repeatable)")
+    p.add_argument("--frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--headless", action="store_true", help="no viewer (kiosk, CI, systemd)")
+    p.add_argument("--no-pace", dest="pace", action="store_false",
+                   help="read a recording as fast as the pipeline takes it instead of at its fps")
+    p.add_argument("--out", metavar="DIR", help="results folder (default runs/<date-time>)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every worker's progress")
+
+
+def resolve_layout(args):
+    """The layout with ``--config`` and ``--set`` applied."""
+    layout = load_layout(args.layout)
+    if args.config:
+        layout = apply_overrides(layout, load_overrides(args.config), args.config)
+    if args.set:
+        overrides: dict = {}
+        for text in args.set:
+            target, param, value = parse_assignment(text)
+            overrides.setdefault(target, {})[param] = value
+        layout = apply_overrides(layout, overrides, "--set")
+    return layout
+
+
+def resolve_source(args) -> RunSpec:
+    """A RunSpec naming a validated recording (or live cameras) and the frame limit."""
+    if args.frames is not None and args.frames <= 0:
+        raise InputError(f"--frames must be positive, got {args.frames}")
+    if getattr(args, "live", None):
+        from app.sources import parse_live
+        from calibration import load_calibration
+        if not args.calibration:
+            raise InputError("--live needs --calibration FILE")
+        calib = load_calibration(args.calibration)
+        live = parse_live(args.live)
+        for cam in live:
+            calib.camera(cam)
+        return RunSpec(calibration=str(Path(args.calibration).resolve()), fps=calib.fps, live=live,
+                       frames=args.frames, pace=True)
+    from app.recording import Recording
+    path = args.recording
+    if path is None:
+        from app.simulation.cache import default_recording
+        path = default_recording(args.scene, seconds=args.seconds)
+    rec = Recording(path)
+    frames = rec.frame_count if args.frames is None else min(args.frames, rec.frame_count)
+    return RunSpec(recording=str(Path(path).resolve()), fps=rec.fps, frames=frames, pace=args.pace)
+
+
+def resolve_out(args, prefix: str = "runs") -> Path:
+    out = Path(args.out) if args.out else Path(prefix) / time.strftime("%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    return out.resolve()

@@ -1,0 +1,59 @@
+"""``smartroom worker NAME``: one worker process by itself (multi-host deployment).
+
+On another host, point it at the hub: ``smartroom worker segmentation --layout
+deploy/layouts/two_hosts.yaml --connect tcp/10.0.0.1:7447``.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def add_arguments(p) -> None:
+    p.add_argument("name", help="the worker's name in the layout")
+    p.add_argument("--layout", metavar="FILE", help="process layout YAML (default deploy/layouts/local.yaml)")
+    p.add_argument("--recording", metavar="DIR", help="recording folder (overrides the layout's run section)")
+    p.add_argument("--out", metavar="DIR", help="results folder (overrides the layout's run section)")
+    p.add_argument("--frames", type=int, metavar="N", help="stop after N frames (sources)")
+    p.add_argument("--no-pace", dest="pace", action="store_false", default=None,
+                   help="read a recording as fast as the pipeline takes it")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="zenoh endpoint of the hub, e.g. tcp/10.0.0.1:7447 (repeatable)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+
+
+def main(args) -> int:
+    import logging
+
+    from app.config import load_layout
+    from app.errors import InputError
+    from app.launcher import ERROR_DIR, LAUNCHED_ENV
+    from workers import worker_class
+    from workers.base import configure_logging
+
+    layout = load_layout(args.layout)
+    run = layout.run
+    if args.recording:
+        run.recording = str(Path(args.recording).resolve())
+    if args.out:
+        run.out = str(Path(args.out).resolve())
+    if args.frames is not None:
+        run.frames = args.frames
+    if args.pace is not None:
+        run.pace = args.pace
+    if args.connect:
+        layout.bus.connect = list(args.connect)
+    spec = layout.worker(args.name)
+    configure_logging(spec.name, logging.INFO if args.verbose else logging.WARNING)
+    try:
+        worker = worker_class(spec.kind)(spec, layout)
+        return worker.run()
+    except InputError as exc:
+        if run.out:
+            d = Path(run.out) / ERROR_DIR
+            d.mkdir(parents=True, exist_ok=True)
+            (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
+        if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
+            logging.getLogger(f"smartroom.{spec.name}").error("%s", exc)
+            return 2
+        raise

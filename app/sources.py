@@ -1,0 +1,155 @@
+"""Where frames come from: a recording folder read as if live, or live cameras.
+
+Both give ``(index, {camera: BGR image})`` in frame order; the grabber worker and
+``smartroom record`` share them.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import cv2
+import numpy as np
+
+from app.errors import InputError
+from app.recording import Recording
+from calibration import Calibration
+
+__all__ = ["RecordingSource", "LiveSource", "parse_live"]
+
+log = logging.getLogger("smartroom.sources")
+
+
+class RecordingSource:
+    """Frames of a recording folder, optionally limited to some cameras and frames."""
+
+    live = False
+
+    def __init__(self, path, cameras=None, start: int = 0, frames: int | None = None):
+        self.recording = Recording(path)
+        self.calibration = self.recording.calibration
+        self.cameras = list(cameras) if cameras else self.recording.cameras
+        for c in self.cameras:
+            self.calibration.camera(c)  # unknown camera -> one-line error
+        self.fps = self.recording.fps
+        if not 0 <= start < self.recording.frame_count:
+            raise InputError(f"{path}: start frame {start} is outside 0..{self.recording.frame_count - 1}")
+        self.start = start
+        stop = self.recording.frame_count if frames is None else min(self.recording.frame_count, start + frames)
+        self.stop = stop
+        self.expected = stop - start
+
+    def frames(self):
+        yield from self.recording.frames(self.cameras, self.start, self.stop)
+
+    def close(self):
+        pass
+
+
+def parse_live(items) -> dict:
+    """``["cam0=0", "cam1=rtsp://..."]`` -> ``{"cam0": 0, "cam1": "rtsp://..."}``."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise InputError(f"--live {item}: expected CAMERA=DEVICE_INDEX_OR_URL")
+        cam, src = item.split("=", 1)
+        out[cam] = int(src) if src.isdigit() else src
+    return out
+
+
+class _CameraThread(threading.Thread):
+    """Reads one live camera as fast as it delivers, keeping only the newest image."""
+
+    def __init__(self, name: str, source, width: int, height: int, reopen_s: float = 2.0):
+        super().__init__(daemon=True, name=f"camera-{name}")
+        self.cam, self.source, self.size = name, source, (width, height)
+        self.reopen_s = reopen_s
+        self.lock = threading.Lock()
+        self.latest: np.ndarray | None = None
+        self.fresh = False
+        self.failed_since: float | None = None
+        self.stopped = threading.Event()
+        self.cap = None
+
+    def _open(self):
+        cap = cv2.VideoCapture(self.source)
+        if not cap.isOpened():
+            return None
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.size[0])
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size[1])
+        return cap
+
+    def run(self):
+        while not self.stopped.is_set():
+            if self.cap is None:
+                self.cap = self._open()
+                if self.cap is None:
+                    self._failed("cannot be opened")
+                    self.stopped.wait(self.reopen_s)
+                    continue
+            ok, img = self.cap.read()
+            if not ok or img is None:
+                self.cap.release()
+                self.cap = None
+                self._failed("stopped delivering frames")
+                self.stopped.wait(self.reopen_s)
+                continue
+            if img.shape[1::-1] != self.size:
+                img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+            with self.lock:
+                self.latest, self.fresh = img, True
+            if self.failed_since is not None:
+                log.warning("camera %s is back", self.cam)
+                self.failed_since = None
+        if self.cap is not None:
+            self.cap.release()
+
+    def _failed(self, why: str):
+        if self.failed_since is None:
+            self.failed_since = time.time()
+            log.warning("camera %s (%s) %s; the others go on, retrying every %.0f s", self.cam, self.source, why, self.reopen_s)
+
+    def take(self) -> np.ndarray | None:
+        with self.lock:
+            if not self.fresh:
+                return None
+            self.fresh = False
+            return self.latest
+
+
+class LiveSource:
+    """Live cameras (``cv2.VideoCapture`` device indices or URLs) sampled at the
+    calibration's fps. A camera that stops is left out of the frames it misses (the
+    reconstruction's tolerance covers a missing view) and is reopened periodically."""
+
+    live = True
+
+    def __init__(self, sources: dict, calibration: Calibration, frames: int | None = None):
+        self.calibration = calibration
+        self.cameras = list(sources)
+        for c in self.cameras:
+            calibration.camera(c)
+        self.fps = calibration.fps
+        self.expected = frames
+        self.threads = {c: _CameraThread(c, sources[c], calibration.camera(c).width, calibration.camera(c).height)
+                        for c in self.cameras}
+        self.start = 0
+        self._closed = threading.Event()
+
+    def frames(self):
+        for t in self.threads.values():
+            t.start()
+        index, tick, period, t0 = 0, 0, 1.0 / self.fps, time.monotonic()
+        while not self._closed.is_set() and (self.expected is None or index < self.expected):
+            self._closed.wait(max(0.0, t0 + tick * period - time.monotonic()))
+            tick += 1
+            images = {c: img for c, t in self.threads.items() if (img := t.take()) is not None}
+            if images:
+                yield index, images
+                index += 1
+
+    def close(self):
+        self._closed.set()
+        for t in self.threads.values():
+            t.stopped.set()

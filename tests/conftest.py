@@ -1,0 +1,35 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.synthetic import write_tiny_recording
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def tiny_recording(tmp_path_factory):
+    """2 cameras, 160x120, 60 frames at 25 fps, with background images."""
+    return write_tiny_recording(tmp_path_factory.mktemp("rec") / "tiny", frames=60)
+
+
+@pytest.fixture(scope="session")
+def long_recording(tmp_path_factory):
+    """2 cameras, 160x120, 250 frames (10 s) at 25 fps."""
+    return write_tiny_recording(tmp_path_factory.mktemp("rec") / "long", frames=250)
+
+
+def smartroom(*args, timeout=120, **kw):
+    """Run the CLI as a separate process, as a user would."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT, env=env, **kw)
+
+
+def start_smartroom(*args, **kw):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env, **kw)

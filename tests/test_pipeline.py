@@ -1,0 +1,140 @@
+"""The spine end to end: real worker processes over a real loopback zenoh session."""
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+import yaml
+import zenoh
+
+from app.bus import BusConfig, Keys, open_session
+from tests.conftest import smartroom, start_smartroom
+from tests.synthetic import tiny_calibration, write_tiny_recording
+
+pytestmark = pytest.mark.integration
+
+
+def _stats(out):
+    return json.loads((out / "stats.json").read_text())
+
+
+def test_run_passes_every_frame_through_separate_processes(tiny_recording, tmp_path):
+    out = tmp_path / "out"
+    r = smartroom("run", "--recording", tiny_recording, "--frames", 50, "--headless", "--out", out)
+    assert r.returncode == 0, r.stderr
+    s = _stats(out)
+    assert s["complete"] is True
+    assert set(s["stages"]) == {"grabber", "segmentation"}
+    for name, st in s["stages"].items():
+        assert st["final"], name
+        assert st["frames_in"] + st["frames_missing"] == 50, (name, st)
+        assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], (name, st)
+    assert s["stages"]["grabber"]["frames_out"] == 50
+    assert s["stages"]["segmentation"]["frames_out"] >= 48  # paced 2-camera 160x120: nothing should drop
+    pids = {w["pid"] for w in s["workers"].values()}
+    assert len(pids) == 2 and os.getpid() not in pids
+    assert 0.85 < s["rtf"] <= 1.05  # paced at the recording's fps
+    assert (out / "layout.yaml").is_file()
+    assert not list(out.glob("*.partial"))
+    assert "segmentation" in r.stdout and "RTF" in r.stdout  # the summary table
+
+
+def test_no_pace_runs_faster_than_real_time(tiny_recording, tmp_path):
+    out = tmp_path / "out"
+    r = smartroom("run", "--recording", tiny_recording, "--headless", "--no-pace", "--out", out)
+    assert r.returncode == 0, r.stderr
+    s = _stats(out)
+    assert s["stages"]["grabber"]["frames_out"] == 60
+    assert s["rtf"] > 1.0
+
+
+def _one_line_error(r):
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.startswith("smartroom: error:")]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "Traceback" not in r.stderr
+    return lines[0]
+
+
+def test_missing_recording_is_one_line_error(tmp_path):
+    line = _one_line_error(smartroom("run", "--recording", tmp_path / "nothing", "--headless", "--out", tmp_path / "o"))
+    assert "recording folder not found" in line
+
+
+def test_video_of_wrong_size_is_one_line_error_naming_the_file(tmp_path):
+    rec = write_tiny_recording(tmp_path / "rec", frames=10, width=96, height=72)
+    calib = yaml.safe_load((rec / "calibration.yaml").read_text())
+    calib["cameras"][1]["width"], calib["cameras"][1]["height"] = 160, 120  # the video is 96x72
+    (rec / "calibration.yaml").write_text(yaml.safe_dump(calib))
+    (rec / "background" / "cam1.png").unlink()
+    r = smartroom("run", "--recording", rec, "--headless", "--out", tmp_path / "o")
+    line = _one_line_error(r)
+    assert "videos/cam1.avi: frame size 96x72 does not match calibration 160x120" in line
+
+
+def test_malformed_messages_are_counted_and_skipped(tiny_recording, tmp_path):
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", tiny_recording, "--headless", "--out", out)
+    layout_file = out / "layout.yaml"
+    for _ in range(100):
+        if layout_file.is_file():
+            break
+        time.sleep(0.05)
+    layout = yaml.safe_load(layout_file.read_text())
+    session = open_session(BusConfig(connect=layout["bus"]["connect"]))
+    keys = Keys(layout["room"])
+    try:
+        time.sleep(1.0)
+        for payload in (b"", b"garbage", b"SRM\x01" + bytes(40), b"\xff" * 1000):
+            session.put(keys.frame("cam0"), payload)
+            time.sleep(0.05)
+    finally:
+        session.close()
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    s = _stats(out)
+    seg = s["workers"]["segmentation"]
+    assert seg["bad_messages"] >= 1
+    assert s["stages"]["segmentation"]["frames_out"] >= 55  # the stream went on
+
+
+def test_crashed_worker_is_restarted_and_the_run_still_ends(long_recording, tmp_path):
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--out", out)
+    pid = None
+    for _ in range(200):
+        if (out / "stats.json").is_file():
+            w = _stats(out)["workers"].get("segmentation")
+            if w and w["frames_out"] > 10:
+                pid = w["pid"]
+                break
+        time.sleep(0.05)
+    assert pid is not None
+    os.kill(pid, signal.SIGKILL)
+    _, err = proc.communicate(timeout=90)
+    assert "worker segmentation died (exit -9); restarting" in err
+    assert proc.returncode == 0, err
+    s = _stats(out)
+    assert s["complete"] and s["stages"]["grabber"]["frames_out"] == 250
+    assert s["workers"]["segmentation"]["pid"] != pid  # the final figures come from the new process
+
+
+def test_ctrl_c_ends_the_stream_and_completes_files(long_recording, tmp_path):
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--out", out)
+    time.sleep(4.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    s = _stats(out)
+    assert s["complete"]
+    n = s["stages"]["grabber"]["frames_out"]
+    assert 0 < n < 250
+    seg = s["stages"]["segmentation"]
+    assert seg["final"] and seg["frames_in"] + seg["frames_missing"] == n
+
+
+def test_unknown_worker_name(tmp_path):
+    line = _one_line_error(smartroom("worker", "nobody"))
+    assert "no worker named 'nobody'" in line

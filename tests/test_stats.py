@@ -1,0 +1,57 @@
+"""Stage accounting and the pipeline summary (RTF, Eq. 4.27)."""
+from app.stats import StageLedger, summarise
+from workers.base import Inbox
+
+
+class Clock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_ledger_counts_drops_and_missing_frames():
+    clock = Clock()
+    led = StageLedger(clock)
+    for f in range(10):
+        if f == 3:
+            continue  # never arrives
+        led.received(f, stamp=clock.now)
+        clock.now += 0.01
+        if f != 6:  # received but skipped
+            led.emitted(f, stamp=clock.now - 0.01)
+        clock.now += 0.03
+    fig = led.figures(final=True, expected=10)
+    assert (fig["frames_in"], fig["frames_out"], fig["frames_dropped"], fig["frames_missing"]) == (9, 8, 1, 1)
+    assert fig["missing_frames"] == [3] and fig["dropped_frames"] == [6]
+    assert abs(fig["latency_ms"]["p50"] - 10.0) < 1e-6
+    assert fig["frames_in"] + fig["frames_missing"] == 10
+
+
+def test_summary_rtf_is_fps_over_recording_fps():
+    stages = {
+        "grabber": {"stage": "grabber", "order": 0, "figures": {"frames_out": 100, "fps": 25.0}},
+        "segmentation": {"stage": "segmentation", "order": 1,
+                         "figures": {"frames_in": 100, "frames_out": 90, "frames_dropped": 10, "fps": 12.5,
+                                     "latency_ms": {"mean": 30.0, "p50": 25.0, "p95": 60.0}}},
+        "recorder": {"stage": "recorder", "order": None, "figures": {}},
+    }
+    s = summarise(stages, 25.0, 100)
+    assert s["final_stage"] == "segmentation" and s["rtf"] == 0.5
+    assert s["stages"]["segmentation"]["latency_p95_ms"] == 60.0
+
+
+def test_inbox_keeps_the_newest_per_key_in_arrival_order():
+    drops = []
+    box = Inbox(depth=1, on_drop=lambda: drops.append(1))
+    box.put("cam0", 1)
+    box.put("cam1", 2)
+    box.put("cam0", 3)  # pushes out 1
+    assert box.get(0) == ("cam1", 2)
+    assert box.get(0) == ("cam0", 3)
+    assert box.get(0.01) is None and len(drops) == 1
+    deep = Inbox(depth=3)
+    for i in range(5):
+        deep.put("k", i)
+    assert [deep.get(0)[1] for _ in range(3)] == [2, 3, 4]
