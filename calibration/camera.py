@@ -118,6 +118,21 @@ class Camera:
                 & (uv[:, 1] < self.height - 0.5 + margin)
             )
 
+    def scaled(self, width: int, height: int) -> "Camera":
+        """The same camera imaging at another resolution (e.g. a downscaled mask).
+
+        Pixel centres map as ``u' = (u + 0.5) * width / self.width - 0.5``, so the
+        intrinsics scale about the image corner, not the principal point.
+        """
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[0, 1] *= sx
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 1] *= sy
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return Camera(self.name, int(width), int(height), K, self.dist.copy(), self.R.copy(), self.t.copy())
+
     # -- construction -------------------------------------------------------------
     @classmethod
     def look_at(

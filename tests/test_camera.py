@@ -57,3 +57,10 @@ def test_look_at_centres_the_target():
     uv = cam.project(np.array([[2.5, 2.0, 0.9]]))[0]
     np.testing.assert_allclose(uv, [319.5, 239.5], atol=1e-6)
     assert np.isclose(np.linalg.det(cam.R), 1.0)
+
+
+def test_scaled_camera_maps_pixel_centres():
+    cam = _camera()
+    half = cam.scaled(320, 240)
+    pts = _points()
+    np.testing.assert_allclose(half.project(pts), (cam.project(pts) + 0.5) * 0.5 - 0.5, atol=1e-9)
