@@ -151,7 +151,7 @@ def _coerce(value, default, where: str):
 
 def parse_layout(data, path: str = "layout.yaml") -> Layout:
     """Validate a parsed layout document against the registered worker kinds."""
-    from workers import KINDS, worker_class
+    from workers import KINDS, is_kind, worker_class
 
     if not isinstance(data, dict):
         raise LayoutError(f"{path}: expected a mapping with room, bus and workers")
@@ -184,15 +184,20 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
         name = e.get("name", kind)
         if not isinstance(name, str) or not name or "/" in name or "*" in name:
             raise LayoutError(f"{path}: workers[{i}]: name must be a plain word")
-        if kind not in KINDS:
-            raise LayoutError(f"{path}: worker {name}: unknown kind {kind!r} (known: {', '.join(sorted(KINDS))})")
+        if not is_kind(kind):
+            raise LayoutError(f"{path}: worker {name}: unknown kind {kind!r} (known: {', '.join(sorted(KINDS))}, "
+                              "or module:Class)")
+        try:
+            cls = worker_class(kind)
+        except (ImportError, AttributeError) as exc:
+            raise LayoutError(f"{path}: worker {name}: cannot load kind {kind!r} ({exc})") from None
         if name in names:
             raise LayoutError(f"{path}: worker name {name} appears more than once")
         names.add(name)
         params = e.get("params") or {}
         if not isinstance(params, dict):
             raise LayoutError(f"{path}: worker {name}: params must be a mapping")
-        merged = _check_params(worker_class(kind), params, f"{path}: worker {name}")
+        merged = _check_params(cls, params, f"{path}: worker {name}")
         workers.append(WorkerSpec(name=name, kind=kind, params=merged, host=str(e.get("host", "local")),
                                   restart=bool(e.get("restart", True))))
     run = RunSpec(**(data.get("run") or {})) if isinstance(data.get("run"), dict) else RunSpec()

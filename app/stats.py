@@ -158,6 +158,8 @@ class StageLedger:
             "latency_window_ms": percentiles(win_lat),
             "process_ms": percentiles(self.process_ms),
             "busy": round(min(1.0, sum(b[1] for b in self._busy) / span), 3),
+            "busy_total": round(min(1.0, sum(self.process_ms) / 1e3 / max(1e-6, now - (self.first_in or now))), 3)
+            if self.first_in is not None else 0.0,
             "cpu_percent": round(cpu_percent, 1),
             "last_frame": self.last_frame,
             "first_stamp": self.first_stamp,
@@ -183,6 +185,8 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
     per_stage, deepest = {}, None
     for name, s in stages.items():
         f = s["figures"]
+        if s.get("order") is None and not f.get("frames_in"):
+            continue  # a sink that handles no frames (monitor, viewer) is not a stage
         per_stage[name] = {
             "stage": s.get("stage", name),
             "order": s.get("order"),

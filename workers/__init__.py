@@ -1,6 +1,8 @@
 """Worker kinds (thin shells over the algorithm cores) and how they connect.
 
-Kinds are imported lazily so that the launcher and the CLI start fast.
+Kinds are imported lazily so that the launcher and the CLI start fast. A layout may
+also name a worker class of its own as ``kind: package.module:ClassName`` (a plugin:
+any subclass of :class:`workers.base.Worker` importable where the worker runs).
 """
 from __future__ import annotations
 
@@ -12,11 +14,18 @@ KINDS = {
     "grabber": "workers.grabber:Grabber",
     "segmentation": "workers.segmentation:Segmentation",
     "recorder": "workers.recorder:Recorder",
+    "monitor": "workers.monitor:Monitor",
 }
 
 
+def is_kind(kind) -> bool:
+    """A registered kind, or a ``module:Class`` plugin path."""
+    return isinstance(kind, str) and (kind in KINDS or (":" in kind and all(kind.partition(":")[::2])))
+
+
 def worker_class(kind: str):
-    module, _, cls = KINDS[kind].partition(":")
+    """The worker class of a kind (raises ``ImportError``/``AttributeError`` for a bad plugin)."""
+    module, _, cls = KINDS.get(kind, kind).partition(":")
     return getattr(importlib.import_module(module), cls)
 
 

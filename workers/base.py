@@ -113,6 +113,7 @@ class Worker:
         self._subs = []
         self._token = None
         self._last_stats = 0.0
+        self._idle = 0.0
         self.exit_code = 0
 
     # -- what subclasses provide ------------------------------------------------------
@@ -160,6 +161,9 @@ class Worker:
     def on_end(self, msg: EndOfStream) -> None:
         """An upstream worker's end of stream (after it is recorded)."""
 
+    def tick(self) -> None:
+        """Called on every turn of the loop (at least every 50 ms when idle)."""
+
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
         pub = self._publishers.get(key)
@@ -168,6 +172,12 @@ class Worker:
         pub.put(msg)
         if counts:
             self.ledger.emitted(msg.frame, msg.stamp)
+
+    def sleep(self, seconds: float) -> None:
+        """Wait (a source pacing itself); wakes on stop, and is not counted as busy."""
+        t0 = time.perf_counter()
+        self.stop_event.wait(max(0.0, seconds))
+        self._idle += time.perf_counter() - t0
 
     @property
     def is_source(self) -> bool:
@@ -280,13 +290,16 @@ class Worker:
             elif self._ended():
                 break
             self._maybe_stats()
+            self.tick()
 
     def _loop_source(self) -> None:
         while not self.stopping:
             t0 = time.perf_counter()
+            self._idle = 0.0
             more = self.produce()
-            self.ledger.processed(time.perf_counter() - t0)
+            self.ledger.processed(time.perf_counter() - t0 - self._idle)
             self._maybe_stats()
+            self.tick()
             if not more:
                 break
 

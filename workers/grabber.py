@@ -70,7 +70,9 @@ class Grabber(Worker):
     def produce(self) -> bool:
         if self._frames is None:
             self._frames = iter(self.source.frames())
+            t0 = time.perf_counter()
             self._wait_until_ready()
+            self._idle += time.perf_counter() - t0
         try:
             index, images = next(self._frames)
         except StopIteration:
@@ -113,6 +115,7 @@ class Grabber(Worker):
             self._ack_names = self._filters()
             self._ack_sub = self.session.declare_subscriber(self.keys.ack(), self._on_ack)
         need = index - self.params["window"]
+        t0 = time.perf_counter()
         deadline = time.monotonic() + self.params["ack_timeout"]
         with self._ack_cond:
             while not self.stopping and any(self._acks.get(n, -1) < need for n in self._ack_names):
@@ -120,6 +123,7 @@ class Grabber(Worker):
                 if left <= 0:
                     break
                 self._ack_cond.wait(left)
+        self._idle += time.perf_counter() - t0
 
     def _pace(self, index: int) -> None:
         """Sleep until the frame's time on the recording's clock. A frame that is late by
@@ -132,7 +136,7 @@ class Grabber(Worker):
         if now - due > 1.0 / self.source.fps:
             self.t0 += now - due
         elif due > now:
-            self.stop_event.wait(due - now)
+            self.sleep(due - now)
 
     def stream_info(self) -> tuple[int, int, float]:
         return self.produced, self.first, self.source.fps

@@ -23,7 +23,9 @@ def main(args) -> int:
     layout.run = run
     source = run.recording or ", ".join(f"{c}={s}" for c, s in run.live.items())
     print(f"smartroom: {len(layout.workers)} workers on {source}; results in {run.out}", file=sys.stderr)
-    progress = Progress(run.frames, run.fps)
+    # the monitor worker, when the layout has one, shows progress itself
+    has_monitor = any(w.kind == "monitor" for w in layout.workers)
+    progress = None if has_monitor else Progress(run.frames, run.fps)
     rc = Launcher(layout, verbose=args.verbose, progress=progress).run()
     stats = Path(run.out) / "stats.json"
     if stats.is_file():

@@ -1,0 +1,140 @@
+"""The real-time-factor monitor's core: the pipeline as the workers' stats describe it.
+
+Per stage: frames per second in and out, latency from capture (p50/p95 over the last
+seconds), drops, CPU use and how busy the stage is (fraction of wall time spent
+processing). For the pipeline: the real-time factor ``RTF = fps / f_R`` (thesis
+Eq. 4.27) of its deepest stage against the target 1.0, and the bottleneck: the
+stage that is busiest (a stage near 100 % busy cannot take more frames).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from app.messages import Stats
+
+__all__ = ["StageRow", "PipelineView", "REAL_TIME"]
+
+REAL_TIME = 0.95   # RTF at or above this counts as keeping up
+SILENT_S = 3.0     # a worker whose stats are older than this is marked silent
+
+
+@dataclass
+class StageRow:
+    name: str
+    stage: str
+    order: int | None
+    fps_in: float
+    fps_out: float
+    latency_p50: float
+    latency_p95: float
+    dropped: int
+    missing: int
+    cpu: float
+    busy: float
+    final: bool
+    age_s: float
+
+    @property
+    def processing(self) -> bool:
+        return self.order is not None
+
+
+class PipelineView:
+    """Latest stats of every worker, and what they say about the pipeline."""
+
+    def __init__(self, recording_fps: float | None = None, clock=time.time):
+        self.recording_fps = recording_fps
+        self.clock = clock
+        self._stats: dict[str, tuple[float, Stats]] = {}
+        self._lock = threading.Lock()
+
+    def update(self, msg: Stats) -> None:
+        with self._lock:
+            self._stats[msg.worker] = (self.clock(), msg)
+            fps = msg.figures.get("fps_recording")
+            if fps:
+                self.recording_fps = fps
+
+    def rows(self) -> list[StageRow]:
+        now = self.clock()
+        with self._lock:
+            items = list(self._stats.items())
+        rows = []
+        for name, (seen, msg) in items:
+            f = msg.figures
+            lat = f.get("latency_window_ms") or {}
+            if msg.final or not lat.get("p50"):
+                lat = f.get("latency_ms") or {}
+            final = msg.final
+            rows.append(StageRow(
+                name=name, stage=msg.stage, order=f.get("order"),
+                fps_in=f.get("fps", 0.0) if final else f.get("fps_in", 0.0),
+                fps_out=f.get("fps", 0.0) if final else f.get("fps_out", 0.0),
+                latency_p50=lat.get("p50", 0.0), latency_p95=lat.get("p95", 0.0),
+                dropped=f.get("frames_dropped", 0), missing=f.get("frames_missing", 0),
+                cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
+                final=final, age_s=now - seen))
+        rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
+        return rows
+
+    @staticmethod
+    def shown(rows: list[StageRow]) -> list[StageRow]:
+        """Processing stages, and sinks only once they handle frames (the recorder)."""
+        return [r for r in rows if r.processing or r.fps_in > 0]
+
+    def deepest(self, rows=None) -> StageRow | None:
+        procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
+        return max(procs, key=lambda r: r.order) if procs else None
+
+    def rtf(self, rows=None) -> float | None:
+        last = self.deepest(rows)
+        if last is None or not self.recording_fps:
+            return None
+        return last.fps_out / self.recording_fps
+
+    def bottleneck(self, rows=None) -> StageRow | None:
+        """The busiest processing stage (ties: the one that drops more)."""
+        procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
+        if not procs:
+            return None
+        return max(procs, key=lambda r: (round(r.busy, 2), r.dropped))
+
+    def verdict(self, rtf: float | None) -> str:
+        if rtf is None:
+            return "waiting"
+        return "real-time" if rtf >= REAL_TIME else f"behind ({100 * rtf:.0f}% of real time)"
+
+    def line(self) -> str:
+        """One journal-friendly line: ``rtf=.. verdict=.. bottleneck=.. | stage: ... | ...``."""
+        rows = self.rows()
+        rtf = self.rtf(rows)
+        neck = self.bottleneck(rows)
+        head = [f"rtf={rtf:.2f}" if rtf is not None else "rtf=-", f"verdict={self.verdict(rtf).split(' ')[0]}"]
+        if neck is not None:
+            head.append(f"bottleneck={neck.name} busy={neck.busy:.2f}")
+        parts = [" ".join(head)]
+        for r in self.shown(rows):
+            parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
+                         f"p95={r.latency_p95:.1f} drop={r.dropped} cpu={r.cpu:.0f} busy={r.busy:.2f}")
+        return " | ".join(parts)
+
+    def table(self) -> str:
+        """The live terminal view."""
+        rows = self.rows()
+        rtf = self.rtf(rows)
+        neck = self.bottleneck(rows)
+        fps = f"{self.recording_fps:g} fps recording" if self.recording_fps else "recording fps unknown"
+        head = f"smartroom monitor | {fps} | RTF {rtf:.2f} (target 1.00): {self.verdict(rtf).upper()}" \
+            if rtf is not None else f"smartroom monitor | {fps} | waiting for stages"
+        lines = [head]
+        if neck is not None:
+            lines.append(f"bottleneck: {neck.name} (busy {100 * neck.busy:.0f}%, {neck.dropped} frames dropped)")
+        cols = f"{'stage':<16}{'fps in':>8}{'fps out':>9}{'lat p50':>9}{'lat p95':>9}{'drops':>7}{'cpu %':>7}{'busy':>6}"
+        lines += ["", cols, "-" * len(cols)]
+        for r in self.shown(rows):
+            mark = " (ended)" if r.final else (f" (silent {r.age_s:.0f} s)" if r.age_s > SILENT_S else "")
+            lines.append(f"{r.name:<16}{r.fps_in:>8.1f}{r.fps_out:>9.1f}{r.latency_p50:>7.1f}ms{r.latency_p95:>7.1f}ms"
+                         f"{r.dropped:>7}{r.cpu:>7.0f}{100 * r.busy:>5.0f}%{mark}")
+        return "\n".join(lines)

@@ -1,0 +1,17 @@
+"""A deliberately slow stage for tests (loaded as a plugin kind: ``tests.slow_stage:SlowStage``)."""
+import time
+
+from app.messages import Ack
+from workers.base import Worker
+
+
+class SlowStage(Worker):
+    KIND = "slow"
+    ORDER = 2
+    CONSUMES = ("mask",)
+    PRODUCES = ("slow",)
+    DEFAULTS = {"delay_ms": 100.0}
+
+    def handle(self, key, msg):
+        time.sleep(self.params["delay_ms"] / 1e3)
+        self.publish(self.keys.stage("slow"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))

@@ -1,0 +1,67 @@
+"""The real-time-factor monitor against runs whose rates are known."""
+import pytest
+import yaml
+
+from app.messages import Stats
+from app.monitor import PipelineView
+from tests.conftest import smartroom
+
+
+def _stats(worker, order, fps_out, busy, final=False, **fig):
+    return Stats(worker=worker, stage=worker, final=final,
+                 figures={"order": order, "fps_in": fps_out, "fps_out": fps_out, "fps": fps_out, "busy": busy,
+                          "busy_total": busy, "latency_window_ms": {"p50": 10.0, "p95": 20.0}, **fig})
+
+
+def test_view_rtf_verdict_and_bottleneck():
+    view = PipelineView()
+    view.update(_stats("grabber", 0, 25.0, 0.05, fps_recording=25.0))
+    view.update(_stats("segmentation", 1, 24.0, 0.6))
+    view.update(_stats("reconstruction", 2, 12.5, 0.98, frames_dropped=40))
+    view.update(_stats("recorder", None, 0.0, 0.0))
+    assert view.rtf() == pytest.approx(0.5)
+    assert view.bottleneck().name == "reconstruction"
+    line = view.line()
+    assert line.startswith("rtf=0.50 verdict=behind bottleneck=reconstruction busy=0.98")
+    assert "recorder" not in line  # a sink without frames is not a stage
+    table = view.table()
+    assert "BEHIND (50% OF REAL TIME)" in table and "bottleneck: reconstruction" in table
+
+
+def _monitor_lines(stdout):
+    out = []
+    for ln in stdout.splitlines():
+        if ln.startswith("monitor: rtf="):
+            head = ln[len("monitor: "):].split(" | ")[0]
+            out.append(dict(kv.split("=", 1) for kv in head.split()))
+    return out
+
+
+@pytest.mark.integration
+def test_paced_recording_runs_at_rtf_one(long_recording, tmp_path):
+    r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    lines = _monitor_lines(r.stdout)
+    assert len(lines) >= 3
+    steady = lines[1:-1] or lines  # the first window includes start-up
+    rtfs = sorted(float(d["rtf"]) for d in steady)
+    assert 0.85 <= rtfs[len(rtfs) // 2] <= 1.1, rtfs  # the median window (machines here are noisy)
+    assert lines[-1]["verdict"] == "real-time"
+
+
+@pytest.mark.integration
+def test_slowed_stage_is_named_the_bottleneck(long_recording, tmp_path):
+    layout = yaml.safe_load(open("deploy/layouts/local.yaml"))
+    layout["workers"].insert(2, {"name": "slow", "kind": "tests.slow_stage:SlowStage", "params": {"delay_ms": 100.0}})
+    path = tmp_path / "slow.yaml"
+    path.write_text(yaml.safe_dump(layout))
+    r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--layout", path,
+                  "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    lines = _monitor_lines(r.stdout)
+    running = lines[1:-1]
+    assert running, r.stdout
+    assert all(d["bottleneck"] == "slow" for d in running), running
+    # 2 cameras at 25 fps, 100 ms per image: the slow stage finishes ~5 frames/s of 25
+    assert all(float(d["rtf"]) < 0.5 for d in running), running
+    assert lines[-1]["verdict"] == "behind" and lines[-1]["bottleneck"] == "slow"
