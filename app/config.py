@@ -63,7 +63,8 @@ class RunSpec:
     frames: int | None = None
     pace: bool = True
     headless: bool = False
-    live: list = field(default_factory=list)   # live camera sources, instead of a recording
+    live: dict = field(default_factory=dict)   # live camera sources {camera: device or URL}
+    trace: bool = False                        # workers write per-frame timings to <out>/trace/
 
 
 @dataclass

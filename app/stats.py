@@ -63,8 +63,10 @@ class _FrameSet:
 class StageLedger:
     """Counts, latencies and timings of one worker."""
 
-    def __init__(self, clock=time.time):
+    def __init__(self, clock=time.time, trace: bool = False):
         self.clock = clock
+        #: per frame ``[capture stamp, first received, first output]`` when tracing (benchmarks)
+        self.trace: dict[int, list] | None = {} if trace else None
         self.seen = _FrameSet()
         self.done = _FrameSet()
         self.items_in = 0
@@ -93,6 +95,8 @@ class StageLedger:
             self.first_stamp = stamp
         if self.seen.add(frame):
             self._events.append((now, "in", 0.0))
+            if self.trace is not None:
+                self.trace[frame] = [stamp, now, None]
         self.last_frame = max(self.last_frame, frame)
 
     def emitted(self, frame: int, stamp: float) -> None:
@@ -102,6 +106,8 @@ class StageLedger:
         if self.done.add(frame):
             lat = (now - stamp) * 1e3 if stamp else 0.0
             self.latency_ms.append(lat)
+            if self.trace is not None:
+                self.trace.setdefault(frame, [stamp, now, None])[2] = now
             self._events.append((now, "out", lat))
             self.newest_out = max(self.newest_out, frame)
 

@@ -13,12 +13,15 @@ worker finish at once (files completed, final stats published).
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
 import signal
 import sys
 import threading
 import time
 from collections import deque
+from pathlib import Path
 from typing import ClassVar
 
 from app.bus import Keys, Publisher, decode_sample, open_session
@@ -103,7 +106,7 @@ class Worker:
         self.layout = layout
         self.keys = Keys(layout.room)
         self.log = logging.getLogger(f"smartroom.{self.name}")
-        self.ledger = StageLedger()
+        self.ledger = StageLedger(trace=layout.run.trace)
         self.inbox = Inbox(self.INBOX_DEPTH, on_drop=self.ledger.dropped_item)
         self.stop_event = threading.Event()
         self.session = None
@@ -330,9 +333,23 @@ class Worker:
             self._finish()
         return self.exit_code
 
+    def _write_trace(self) -> None:
+        """Per-frame timings for benchmarks: ``<out>/trace/<name>.json`` (write, then rename)."""
+        if self.ledger.trace is None or not self.layout.run.out:
+            return
+        folder = Path(self.layout.run.out) / "trace"
+        folder.mkdir(parents=True, exist_ok=True)
+        data = {"worker": self.name, "stage": self.stage, "order": self.ORDER,
+                "frames": [[f, *v] for f, v in sorted(self.ledger.trace.items())],
+                "process_ms": [round(v, 3) for v in self.ledger.process_ms]}
+        tmp = folder / f"{self.name}.json.partial"
+        tmp.write_text(json.dumps(data))
+        os.replace(tmp, folder / f"{self.name}.json")
+
     def _finish(self) -> None:
         try:
             self.close()
+            self._write_trace()
         finally:
             if self.session is not None and not self.session.is_closed():
                 try:

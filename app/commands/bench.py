@@ -1,22 +1,30 @@
 """``smartroom bench``: throughput profiling against the real-time target.
 
+- ``smartroom bench [pipeline]``: the pipeline on a recording (default: the simulated
+  meeting3), unpaced and paced; ``profile.json``, ``profile.png`` and a summary table
+  in ``--out``. ``--sweep voxel=2,3,4,5`` (or ``--sweep worker.param=a,b``) repeats it
+  and tabulates RTF against the parameter.
 - ``smartroom bench bus``: codec + zenoh latency and throughput between two processes.
 """
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
-TARGETS = ("bus",)
+from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
+
+TARGETS = ("pipeline", "bus")
 
 
 def add_arguments(p) -> None:
-    p.add_argument("target", nargs="?", default="bus", choices=TARGETS, help="what to measure (default bus)")
-    p.add_argument("--frames", type=int, metavar="N", help="frames to measure")
-    p.add_argument("--out", metavar="DIR", help="write the figures as JSON into DIR")
+    p.add_argument("target", nargs="?", default="pipeline", choices=TARGETS, help="what to measure (default pipeline)")
+    add_pipeline_arguments(p)
+    p.add_argument("--sweep", metavar="P=V1,V2", help="repeat over a parameter: voxel=2,3,4,5 or worker.param=a,b")
+    p.add_argument("--modes", default="unpaced,paced", help="which runs: unpaced, paced or both (default)")
 
 
-def _bus(args) -> dict:
+def _bus(args, out: Path) -> dict:
     from app.benchmarks import bus
 
     n = args.frames or 300
@@ -25,10 +33,43 @@ def _bus(args) -> dict:
     return {"bus": results}
 
 
+def _pipeline(args, out: Path) -> dict:
+    from app.benchmarks.pipeline import profile, summary_lines, sweep_values
+
+    layout = resolve_layout(args)
+    layout.workers = [w for w in layout.workers if w.kind not in ("monitor", "viewer")]
+    run = resolve_source(args)
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    for m in modes:
+        if m not in ("unpaced", "paced"):
+            from app.errors import InputError
+            raise InputError(f"--modes: unknown mode {m!r} (unpaced, paced)")
+    print(f"smartroom bench: {run.frames} frames of {run.recording} ({run.fps:g} fps); report in {out}",
+          file=sys.stderr)
+    if not args.sweep:
+        result = profile(layout, run, out, modes)
+        print("\n".join(summary_lines(result)))
+        print(f"smartroom bench: {out / 'profile.json'}, {out / 'profile.png'}", file=sys.stderr)
+        return result
+    rows = []
+    for label, lay in sweep_values(layout, args.sweep):
+        print(f"smartroom bench: {label}", file=sys.stderr)
+        result = profile(lay, run, out / label.replace("=", "_"), modes)
+        rows.append((label, result))
+        print("\n".join(summary_lines(result)))
+    head = f"{'value':<20}" + "".join(f"{m + ' RTF':>14}{m + ' p95 ms':>16}" for m in modes)
+    print(head)
+    for label, result in rows:
+        cells = ""
+        for m in modes:
+            r = result["modes"][m]
+            cells += f"{r.get('rtf') or 0:>14.2f}{(r.get('end_to_end_latency_ms') or {}).get('p95', 0):>16.0f}"
+        print(f"{label:<20}{cells}")
+    return {"sweep": args.sweep, "runs": {label: r for label, r in rows}}
+
+
 def main(args) -> int:
-    figures = {"bus": _bus}[args.target](args)
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
+    out = resolve_out(args, prefix="runs/bench")
+    figures = {"bus": _bus, "pipeline": _pipeline}[args.target](args, out)
+    (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
