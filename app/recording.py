@@ -159,6 +159,15 @@ class Recording:
             got = f"{img.shape[1]}x{img.shape[0]}" if img.ndim >= 2 else str(img.shape)
             raise RecordingError(f"{shown}: frame size {got} does not match calibration {c.width}x{c.height} of camera {cam}")
 
+    def sample(self, cam: str, n: int) -> list[np.ndarray]:
+        """``n`` frames of one camera spread evenly over the whole recording."""
+        src = self._open(cam)
+        try:
+            idx = np.unique(np.linspace(0, self.frame_count - 1, min(n, self.frame_count)).astype(int))
+            return [img for i in idx if (img := src.read(int(i))) is not None]
+        finally:
+            src.close()
+
     def background(self, cam: str) -> np.ndarray | None:
         """The empty-room image of a camera, if the recording has one."""
         for ext in IMAGE_EXTENSIONS:
