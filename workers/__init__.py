@@ -13,7 +13,9 @@ __all__ = ["KINDS", "worker_class", "upstream_of"]
 KINDS = {
     "grabber": "workers.grabber:Grabber",
     "segmentation": "workers.segmentation:Segmentation",
+    "reconstruction": "workers.reconstruction:Reconstruction",
     "recorder": "workers.recorder:Recorder",
+    "viewer": "workers.viewer:Viewer",
     "monitor": "workers.monitor:Monitor",
 }
 
