@@ -1,0 +1,177 @@
+"""Shape from silhouette with tolerance (thesis §2.2.4), flat and coarse-to-fine.
+
+Occupancy test of one voxel ``V`` (thesis §2.2.4): project its centre into every camera
+that has a mask this frame and whose image contains the projection (``N_visible`` such
+cameras) and count the foreground answers ``N_fg``. ``V`` is occupied when
+
+    N_fg >= N_visible - tolerance      and      N_fg >= min_views,
+
+i.e. at most ``tolerance`` cameras that see it call it background ("some tolerance is
+permitted to cope with faulty segmentations"), and it is never occupied on the word of
+fewer than ``min_views`` cameras. A camera without a mask this frame lowers
+``N_visible``.
+
+Two ways to evaluate it, with the same occupied set:
+
+* ``flat``: :func:`carve_cells` over every voxel of the grid, one table gather per voxel
+  and camera until the answer is known.
+* ``hierarchical`` (coarse-to-fine, Caillette et al. §6.1): the grid is cut into coarse
+  cells (bricks of 8^3 voxels, then their octants, ...) and :func:`classify_cells` sorts
+  each cell into background, foreground or "edge" (Caillette's three classes) from the
+  silhouettes alone: with each camera's summed-area table it counts the foreground
+  pixels in the bounding box of the pixels of the cell's voxel centres (precomputed,
+  lens distortion included, :class:`~.projection.ProjectionTable`).
+
+  - a camera with no foreground in the box calls every voxel of the cell it sees
+    background; if it sees them all, it *surely* calls them background;
+  - a camera with foreground in the box *may* call some voxel foreground; with only
+    foreground in the box it *surely* calls every voxel it sees foreground.
+
+  A cell is background (dropped) when fewer than ``min_views`` cameras may say
+  foreground or more than ``tolerance`` surely say background: then no voxel of it can
+  pass the test above. It is foreground (all its voxels occupied, no voxel tested) when
+  at least ``min_views`` cameras that see all of it surely say foreground and at most
+  ``tolerance`` cameras may say background. Otherwise its children are tested, down to
+  the voxels, where the exact centre test decides. Both shortcuts agree with the
+  per-voxel test by construction, so ``hierarchical`` and ``flat`` give the same set,
+  and empty space costs one box test per coarse cell.
+
+Occupied voxels are written as sort keys ``(i << si) | (j << sj) | k``
+(:class:`~.grid.BrickLayout`), whose order is the flat-id order.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["classify_cells", "carve_cells", "fill_cells", "mask_votes", "MAX_CAMERAS"]
+
+
+@njit(cache=True, nogil=True)
+def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, min_views, expand, out_edge, out_full):
+    """Classify ``cells`` (ids at one box level) from the summed-area tables ``sat`` of
+    the cameras ``cams`` (those with a mask this frame).
+
+    ``boxes`` (n_cells, C, 5) int16: u0 v0 u1 v1 status per cell and camera. Edge cells
+    (or, with ``expand``, their 8 children) go to ``out_edge``, foreground cells to
+    ``out_full``; background cells are dropped. Returns ``(n_edge, n_full)``.
+    """
+    n_edge = 0
+    n_full = 0
+    n_cams = cams.shape[0]
+    for ci in range(cells.shape[0]):
+        cell = cells[ci]
+        may_fg = 0       # cameras with foreground in the box
+        sure_bg = 0      # cameras that see the whole cell, no foreground in the box
+        sure_fg = 0      # cameras that see the whole cell, only foreground in the box
+        may_bg = 0       # cameras that see part of the cell, not only foreground
+        for a in range(n_cams):
+            c = cams[a]
+            status = boxes[cell, c, 4]
+            if status == 0:
+                continue
+            u0 = np.int64(boxes[cell, c, 0])
+            v0 = np.int64(boxes[cell, c, 1])
+            u1 = np.int64(boxes[cell, c, 2]) + 1
+            v1 = np.int64(boxes[cell, c, 3]) + 1
+            base = sat_offset[c]
+            st = sat_stride[c]
+            count = (sat[base + v1 * st + u1] - sat[base + v0 * st + u1]
+                     - sat[base + v1 * st + u0] + sat[base + v0 * st + u0])
+            if count > 0:
+                may_fg += 1
+                if count == (u1 - u0) * (v1 - v0):
+                    if status == 2:
+                        sure_fg += 1
+                else:
+                    may_bg += 1
+            else:
+                may_bg += 1
+                if status == 2:
+                    sure_bg += 1
+                    if sure_bg > tolerance:
+                        break
+            if may_fg + (n_cams - 1 - a) < min_views:
+                break
+        if sure_bg > tolerance or may_fg < min_views:
+            continue
+        if sure_fg >= min_views and may_bg <= tolerance:
+            out_full[n_full] = cell
+            n_full += 1
+        elif expand:
+            for o in range(8):
+                out_edge[n_edge] = cell * 8 + o
+                n_edge += 1
+        else:
+            out_edge[n_edge] = cell
+            n_edge += 1
+    return n_edge, n_full
+
+
+#: Vote of a mask pixel in :func:`carve_cells`: foreground 1, background 32 (so up to
+#: 31 cameras); pixels of cameras without a mask this frame, and the sentinel after the
+#: last mask that the table's ``-1`` ("not seen") reads, vote 0.
+FG_VOTE, BG_VOTE, VOTE_SHIFT = 1, 32, 5
+MAX_CAMERAS = BG_VOTE - 1
+
+
+@njit(cache=True, nogil=True)
+def mask_votes(mask, out):
+    """Votes (foreground 1, background 32) of a 0/1 mask, both flat arrays."""
+    for q in range(mask.shape[0]):
+        out[q] = FG_VOTE if mask[q] else BG_VOTE
+
+
+@njit(cache=True, nogil=True)
+def carve_cells(cells, shift, lut, votes, tolerance, min_views, brick_key, local_key, out, n, early_exit=False):
+    """Exact centre test (§2.2.4) of every voxel of ``cells`` (each ``2^shift``
+    consecutive brick-layout positions). Appends the keys of the occupied voxels to
+    ``out`` from index ``n``; returns the new count.
+
+    ``lut`` (n_positions, C) int32 indices into ``votes`` (the concatenated masks as
+    votes, see :data:`FG_VOTE`; ``-1``, "not seen", wraps to the 0 sentinel at the end).
+    The sum of a voxel's votes is ``N_fg + 32 N_bg``: no branch per camera. With
+    ``early_exit`` the cameras' votes stop at the ``tolerance + 1``-th background answer
+    (faster where most voxels are empty, as in the flat scan; slower on the edge cells
+    the hierarchical method leaves, where the branch is unpredictable).
+    """
+    n_cams = lut.shape[1]
+    bshift = np.int64(0)
+    while (np.int64(1) << bshift) < local_key.shape[0]:
+        bshift += 1
+    lmask = local_key.shape[0] - 1
+    size = np.int64(1) << shift
+    for ci in range(cells.shape[0]):
+        start = np.int64(cells[ci]) << shift
+        base_key = brick_key[start >> bshift]
+        for p in range(start, start + size):
+            total = 0
+            if early_exit:
+                for c in range(n_cams):
+                    total += votes[lut[p, c]]
+                    if (total >> VOTE_SHIFT) > tolerance:
+                        break
+            else:
+                for c in range(n_cams):
+                    total += votes[lut[p, c]]
+            if (total >> VOTE_SHIFT) <= tolerance and (total & MAX_CAMERAS) >= min_views:
+                out[n] = base_key + local_key[p & lmask]
+                n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def fill_cells(cells, shift, brick_key, local_key, out, n):
+    """Append the keys of every voxel of foreground ``cells`` to ``out``; returns the count."""
+    bshift = np.int64(0)
+    while (np.int64(1) << bshift) < local_key.shape[0]:
+        bshift += 1
+    lmask = local_key.shape[0] - 1
+    size = np.int64(1) << shift
+    for ci in range(cells.shape[0]):
+        start = np.int64(cells[ci]) << shift
+        base_key = brick_key[start >> bshift]
+        for p in range(start, start + size):
+            out[n] = base_key + local_key[p & lmask]
+            n += 1
+    return n

@@ -1,0 +1,229 @@
+"""The reconstruction of one frame: shape from silhouette, voxel colouring, surface
+(thesis §2.2.4; coarse-to-fine after Caillette et al. §6.1).
+
+:class:`Reconstructor` builds everything that does not change between frames in its
+constructor (the voxel grid, the projection tables of every camera, the numba kernels),
+so the first frame costs what the others do; :meth:`Reconstructor.reconstruct` then
+turns one frame's masks and images into occupied voxels, colours and surface flags.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import cv2
+import numpy as np
+
+from calibration import Calibration
+
+from .carving import MAX_CAMERAS, carve_cells, classify_cells, fill_cells, mask_votes
+from .colouring import COLOURINGS, VoxelColourer
+from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
+from .projection import ProjectionTable
+
+__all__ = ["Reconstructor", "METHODS"]
+
+METHODS = ("hierarchical", "flat")
+
+
+class Reconstructor:
+    """Voxel reconstruction of a calibrated room.
+
+    Parameters
+    ----------
+    calibration : the cameras and the room (its ``room_min`` / ``room_max`` bound the grid).
+    voxel_size : voxel side in metres (0.02-0.15).
+    mask_sizes : ``{camera: (width, height)}`` of the masks (default: the calibrated size);
+        masks may be downscaled, the tables are built for these sizes.
+    colour_sizes : ``{camera: (width, height)}`` of the colour images (default: the mask sizes).
+    tolerance : ``k``, how many of the cameras that see a voxel may call it background (§2.2.4).
+    min_views : the least number of cameras that must call a voxel foreground.
+    method : ``"hierarchical"`` (coarse-to-fine, default) or ``"flat"`` (every voxel).
+    colouring : ``"visibility"`` (depth buffers, default), ``"raymarch"`` (the thesis's
+        line-of-sight reference), ``"naive"`` (mean over all cameras, no surface) or
+        ``"none"`` (no colours, no surface).
+    brick : side in voxels of the coarsest cells (a power of two, default 8).
+    box_levels : how many coarse levels are tested with summed-area tables before the
+        voxels (cells of ``brick``, ``brick/2``, ...; default 2: 8^3 then 4^3 cells).
+    splat, depth_tolerance, march : the depth buffer's footprint scale, depth tolerance (in
+        voxels) and the length (in voxels) of the exact ray march of the near part of each
+        line of sight (see :mod:`.colouring`).
+    threads : threads for the per-camera visibility (default 1, single-threaded).
+    cache : also keep the projection tables on disk (``$SMARTROOM_CACHE/lut``).
+    """
+
+    def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
+                 colour_sizes: Mapping | None = None, tolerance: int = 1, min_views: int = 2,
+                 method: str = "hierarchical", colouring: str = "visibility", brick: int = 8,
+                 box_levels: int = 2, splat: float = 1.0, depth_tolerance: float = 3.0, march: int = 6,
+                 threads: int = 1, cache: bool = False, warm_up: bool = True):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        if colouring not in COLOURINGS:
+            raise ValueError(f"colouring must be one of {', '.join(COLOURINGS)}, got {colouring!r}")
+        if tolerance < 0 or min_views < 1:
+            raise ValueError("tolerance must be >= 0 and min_views >= 1")
+        if len(calibration.cameras) > MAX_CAMERAS:
+            raise ValueError(f"at most {MAX_CAMERAS} cameras, got {len(calibration.cameras)}")
+        t0 = time.perf_counter()
+        self.calibration = calibration
+        self.names = list(calibration.names)
+        self.method = method
+        self.colouring = colouring
+        self.tolerance = int(tolerance)
+        self.min_views = int(min_views)
+        self.grid = VoxelGrid.from_room(calibration.room_min, calibration.room_max, voxel_size)
+        self.layout = BrickLayout(self.grid, brick)
+        mask_sizes = dict(mask_sizes or {})
+        colour_sizes = dict(colour_sizes or {})
+        for d, what in ((mask_sizes, "mask_sizes"), (colour_sizes, "colour_sizes")):
+            unknown = set(d) - set(self.names)
+            if unknown:
+                raise ValueError(f"{what}: unknown camera {sorted(unknown)[0]!r} (have {', '.join(self.names)})")
+        self.mask_cameras = []
+        self.colour_cameras = []
+        for cam in calibration.cameras:
+            mw, mh = mask_sizes.get(cam.name, (cam.width, cam.height))
+            mc = cam if (mw, mh) == (cam.width, cam.height) else cam.scaled(mw, mh)
+            cw, ch = colour_sizes.get(cam.name, (mw, mh))
+            cc = cam if (cw, ch) == (cam.width, cam.height) else cam.scaled(cw, ch)
+            self.mask_cameras.append(mc)
+            self.colour_cameras.append(cc)
+        self.table = ProjectionTable(self.layout, self.mask_cameras, box_levels=box_levels, cache=cache)
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+        self.colourer = VoxelColourer(self.grid, self.colour_cameras, colouring, splat=splat,
+                                      depth_tolerance=depth_tolerance, march=march, threads=threads)
+        # per-frame buffers, allocated once
+        t = self.table
+        self._votes = np.zeros(t.mask_total + 1, dtype=np.uint8)     # + the 0 sentinel
+        self._sat = np.zeros(t.sat_total, dtype=np.int32)
+        views = t.views_per_brick()
+        self._root_cells = np.flatnonzero(views >= self.min_views).astype(np.int32)
+        self._all_bricks = np.arange(self.layout.n_bricks, dtype=np.int32)
+        self._edge = [np.empty(self.layout.n_cells(l + 1), dtype=np.int32) for l in range(t.box_levels)]
+        self._full = [np.empty(self.layout.n_cells(l), dtype=np.int32) for l in range(t.box_levels)]
+        # keys of the occupied voxels and the sort's scratch: room for every voxel (the
+        # flat method's bound), pages touched now for the first 2^19 (4 MB each)
+        self._keys = np.empty(self.layout.n_positions, dtype=np.int64)
+        self._scratch = np.empty(self.layout.n_positions, dtype=np.int64)
+        self._keys[: 1 << 19] = 0
+        self._scratch[: 1 << 19] = 0
+        self.warm_up_ms = 0.0
+        if warm_up:
+            t1 = time.perf_counter()
+            self._warm_up()
+            self.warm_up_ms = (time.perf_counter() - t1) * 1e3
+
+    # -- properties -----------------------------------------------------------------
+    @property
+    def voxel_size(self) -> float:
+        return self.grid.voxel_size
+
+    @property
+    def table_bytes(self) -> int:
+        """Memory of the projection tables (bytes)."""
+        return self.table.nbytes
+
+    # -- one frame --------------------------------------------------------------------
+    def _upload_masks(self, masks: Mapping) -> np.ndarray:
+        """Write the masks as votes into the concatenated buffer (0 for a camera without a
+        mask) and, for the hierarchical method, their summed-area tables; returns the
+        indices of the cameras with a mask."""
+        t = self.table
+        cams = []
+        for c, name in enumerate(self.names):
+            m = masks.get(name)
+            w, h = t.mask_sizes[c]
+            votes = self._votes[t.mask_offset[c]: t.mask_offset[c] + w * h].reshape(h, w)
+            if m is None:
+                votes[:] = 0
+                continue
+            if m.shape != (h, w):
+                raise ValueError(f"camera {name}: mask must be {h}x{w}, got {'x'.join(map(str, m.shape))}")
+            m01 = np.ascontiguousarray(m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).view(np.uint8))
+            mask_votes(m01.reshape(-1), votes.reshape(-1))
+            if self.method == "hierarchical":
+                sat = self._sat[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
+                cv2.integral(m01, sum=sat, sdepth=cv2.CV_32S)
+            cams.append(c)
+        return np.asarray(cams, dtype=np.int64)
+
+    def carve(self, masks: Mapping) -> np.ndarray:
+        """Occupied voxels (N, 3) uint16, sorted by flat id, from ``{camera: mask or None}``."""
+        return self._indices(self._carve_keys(self._upload_masks(masks)))
+
+    def _carve_keys(self, cams: np.ndarray) -> np.ndarray:
+        """Sort keys of the occupied voxels (unsorted), from the uploaded masks."""
+        t, lay = self.table, self.layout
+        L = lay.levels
+        k, mv = self.tolerance, self.min_views
+        keys = self._keys
+        if len(cams) < mv:
+            return keys[:0]
+        if self.method == "flat":
+            n = carve_cells(self._all_bricks, 3 * L, t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, keys, 0,
+                            True)
+            return keys[:n]
+        n = 0
+        cells = self._root_cells
+        last = t.box_levels - 1
+        for lvl in range(t.box_levels):
+            n_edge, n_full = classify_cells(cells, t.boxes[lvl], cams, self._sat, t.sat_offset, t.sat_stride, k, mv,
+                                        lvl < last, self._edge[lvl], self._full[lvl])
+            if n_full:
+                n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
+            cells = self._edge[lvl][:n_edge]
+        n = carve_cells(cells, 3 * (L - last), t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, keys, n,
+                        False)
+        return keys[:n]
+
+    def _indices(self, keys: np.ndarray) -> np.ndarray:
+        """Sort the keys (= by flat id) and decode them to (N, 3) uint16."""
+        lay = self.layout
+        radix_sort(keys, lay.key_bits, self._scratch)
+        idx = np.empty((len(keys), 3), dtype=np.uint16)
+        keys_to_indices(keys, lay.key_shift_i, lay.key_shift_j, idx)
+        return idx
+
+    def reconstruct(self, masks: Mapping, images: Mapping | None = None):
+        """Reconstruct one frame.
+
+        ``masks``: ``{camera: (h, w) bool mask or None}`` (a missing camera or ``None``
+        lowers ``N_visible``); ``images``: ``{camera: (h, w, 3) BGR uint8 or None}`` at
+        the colour size (needed for colours; the surface flag is geometric).
+
+        Returns ``(indices, colours, surface, timings)``: occupied voxels (N, 3) uint16
+        sorted by flat id, colours (N, 3) RGB uint8 (empty for ``colouring="none"``;
+        zero on interior voxels), surface flags (N,) bool (empty for ``"none"`` and
+        ``"naive"``) and ``{"carve", "surface", "colour", "total"}`` in ms.
+        """
+        unknown = set(masks) - set(self.names)
+        if unknown:
+            raise ValueError(f"masks: unknown camera {sorted(unknown)[0]!r} (have {', '.join(self.names)})")
+        t0 = time.perf_counter()
+        indices = self._indices(self._carve_keys(self._upload_masks(masks)))
+        t1 = time.perf_counter()
+        timings = {"carve": (t1 - t0) * 1e3, "surface": 0.0, "colour": 0.0}
+        images = images or {}
+        imgs = [images.get(n) for n in self.names]
+        colours, surface, tc = self.colourer.colour(indices, imgs, [masks.get(n) for n in self.names])
+        timings.update(tc)
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        return indices, colours, surface, timings
+
+    def _warm_up(self) -> None:
+        """Run every kernel once on an empty frame and on a tiny blob (numba compiles or
+        loads its cache here, not on the first real frame)."""
+        masks = {}
+        for cam in self.mask_cameras:
+            m = np.zeros((cam.height, cam.width), dtype=bool)
+            m[cam.height // 2 - 1: cam.height // 2 + 2, cam.width // 2 - 1: cam.width // 2 + 2] = True
+            masks[cam.name] = m
+        images = {c.name: np.zeros((c.height, c.width, 3), np.uint8) for c in self.colour_cameras}
+        self.reconstruct(masks, images)
+        # images decoded from bus messages are read-only views: numba compiles those apart
+        for img in images.values():
+            img.flags.writeable = False
+        self.reconstruct(masks, images)
+        lay = self.layout
+        fill_cells(self._root_cells[:0], 0, lay.brick_key, lay.local_key, self._keys, 0)   # may not have run
