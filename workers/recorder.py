@@ -4,7 +4,8 @@
 and renamed when the run ends (in frame order); a file exists only when the layout
 has a stage that produces it. ``stats.json`` is rewritten atomically (write, then
 rename) once a second and completed at the end with every stage's final figures and
-the pipeline real-time factor.
+the pipeline real-time factor. With ``voxels: true`` the reconstruction is kept too,
+in ``voxels.bin`` (see :mod:`app.results`), for evaluation and replay.
 """
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import os
 import time
 from pathlib import Path
 
-from app.messages import JOINTS, Poses, Stats, Tracks
+from app.messages import JOINTS, Poses, Stats, Tracks, Voxels
+from app.results import VoxelWriter
 from app.stats import summarise
 from workers import worker_class
 from workers.base import Worker
@@ -61,8 +63,14 @@ class _JsonLines:
 class Recorder(Worker):
     KIND = "recorder"
     CONSUMES = ("tracks", "poses", "stats")
-    INBOX_DEPTH = 10_000   # results are small: keep them all rather than drop
-    DEFAULTS = {}
+    INBOX_DEPTH = 1000   # keep results rather than drop them (bounded all the same)
+    DEFAULTS = {
+        "voxels": False,   # also keep every frame's voxels in voxels.bin
+    }
+
+    def subscriptions(self) -> list[str]:
+        keys = super().subscriptions()
+        return keys + [self.keys.voxels()] if self.params["voxels"] else keys
 
     def setup(self) -> None:
         if not self.layout.run.out:
@@ -73,6 +81,7 @@ class Recorder(Worker):
         produced = {s for w in self.layout.workers for s in worker_class(w.kind).PRODUCES}
         self.tracks = _JsonLines(self.out / "tracks.jsonl") if "tracks" in produced else None
         self.poses = _JsonLines(self.out / "poses.jsonl") if "poses" in produced else None
+        self.voxels = VoxelWriter(self.out / "voxels.bin") if self.params["voxels"] and "voxels" in produced else None
         self.stages: dict[str, dict] = {}
         self._last_write = 0.0
 
@@ -89,6 +98,8 @@ class Recorder(Worker):
                     "joints": {j: _r(msg.joints[k, n]) for n, j in enumerate(JOINTS)},
                     "active": {j: bool(msg.active[k, n]) for n, j in enumerate(JOINTS)}})
             self.poses.write(msg.frame, {"frame": int(msg.frame), "t": round(msg.t, 4), "poses": poses})
+        elif isinstance(msg, Voxels) and self.voxels is not None:
+            self.voxels.write(msg)
         else:
             return
         self.ledger.emitted(msg.frame, msg.stamp)
@@ -111,7 +122,7 @@ class Recorder(Worker):
         self._last_write = time.monotonic()
 
     def close(self) -> None:
-        for f in (self.tracks, self.poses):
+        for f in (self.tracks, self.poses, getattr(self, "voxels", None)):
             if f is not None:
                 f.close()
         if hasattr(self, "out"):
