@@ -84,12 +84,13 @@ class PipelineView:
         """Processing stages, and sinks only once they handle frames (the recorder)."""
         return [r for r in rows if r.processing or r.fps_in > 0]
 
-    def deepest(self, rows=None) -> StageRow | None:
+    def limiting(self, rows=None) -> StageRow | None:
+        """The processing stage with the lowest output rate (ties: the deepest)."""
         procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
-        return max(procs, key=lambda r: r.order) if procs else None
+        return min(procs, key=lambda r: (r.fps_out, -r.order)) if procs else None
 
     def rtf(self, rows=None) -> float | None:
-        last = self.deepest(rows)
+        last = self.limiting(rows)
         if last is None or not self.recording_fps:
             return None
         return last.fps_out / self.recording_fps

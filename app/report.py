@@ -8,12 +8,9 @@ __all__ = ["Progress", "summary_table"]
 
 
 def _deepest(stats: dict):
-    best = None
-    for s in stats.values():
-        order = s.figures.get("order")
-        if order is not None and (best is None or order > best.figures.get("order")):
-            best = s
-    return best
+    """The last processing stage: its output counts the frames done."""
+    procs = [s for s in stats.values() if s.figures.get("order") is not None]
+    return max(procs, key=lambda s: s.figures["order"]) if procs else None
 
 
 class Progress:

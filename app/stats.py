@@ -183,12 +183,13 @@ class StageLedger:
 def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> dict:
     """The pipeline summary of ``stats.json`` from each worker's last figures.
 
-    ``stages`` maps worker name to ``{"stage", "order", "figures"}``. The pipeline's
-    throughput is that of the deepest processing stage: frames it put out over the
-    wall time from the first capture to its last output; the real-time factor is
-    ``RTF = fps / f_R`` (thesis Eq. 4.27).
+    ``stages`` maps worker name to ``{"stage", "order", "figures"}``. A stage's
+    throughput is the frames it put out over the wall time from the first capture to
+    its last output; the pipeline runs at the pace of its slowest processing stage
+    (``final_stage``: every frame it drops is a frame the pipeline did not fully
+    process), and its real-time factor is ``RTF = fps / f_R`` (thesis Eq. 4.27).
     """
-    per_stage, deepest = {}, None
+    per_stage = {}
     for name, s in stages.items():
         f = s["figures"]
         if s.get("order") is None and not f.get("frames_in"):
@@ -210,17 +211,16 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
             "bad_messages": f.get("bad_messages", 0),
             "final": bool(s.get("final", False)),
         }
-        order = s.get("order")
-        if order is not None and (deepest is None or order > stages[deepest]["order"]):
-            deepest = name
     out = {"recording_fps": recording_fps, "frames": frames, "stages": per_stage}
-    if deepest is not None:
-        f = stages[deepest]["figures"]
-        fps = f.get("fps", 0.0)
+    procs = [n for n, s in per_stage.items() if s["order"] is not None]
+    if procs:
+        slowest = min(procs, key=lambda n: (per_stage[n]["fps"], -per_stage[n]["order"]))
+        deepest = max(procs, key=lambda n: per_stage[n]["order"])
+        fps = per_stage[slowest]["fps"]
         out.update({
-            "final_stage": deepest,
+            "final_stage": slowest,
             "fps": fps,
             "rtf": round(fps / recording_fps, 4) if recording_fps else None,
-            "end_to_end_latency_ms": f.get("latency_ms", {}),
+            "end_to_end_latency_ms": stages[deepest]["figures"].get("latency_ms", {}),
         })
     return out

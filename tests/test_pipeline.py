@@ -26,15 +26,16 @@ def test_run_passes_every_frame_through_separate_processes(tiny_recording, tmp_p
     assert r.returncode == 0, r.stderr
     s = _stats(out)
     assert s["complete"] is True
-    assert set(s["stages"]) == {"grabber", "segmentation"}
+    assert set(s["stages"]) == {"grabber", "segmentation", "reconstruction"}
     for name, st in s["stages"].items():
         assert st["final"], name
         assert st["frames_in"] + st["frames_missing"] == 50, (name, st)
         assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], (name, st)
     assert s["stages"]["grabber"]["frames_out"] == 50
-    assert s["stages"]["segmentation"]["frames_out"] >= 48  # paced 2-camera 160x120: nothing should drop
+    for stage in ("segmentation", "reconstruction"):  # paced 2-camera 160x120: nothing should drop
+        assert s["stages"][stage]["frames_out"] >= 48, s["stages"][stage]
     pids = {w["pid"] for w in s["workers"].values()}
-    assert len(pids) == len(s["workers"]) >= 3 and os.getpid() not in pids  # grabber, segmentation, monitor
+    assert len(pids) == len(s["workers"]) >= 4 and os.getpid() not in pids  # and the monitor
     assert 0.85 < s["rtf"] <= 1.05  # paced at the recording's fps
     assert (out / "layout.yaml").is_file()
     assert not list(out.glob("*.partial"))
@@ -73,30 +74,39 @@ def test_video_of_wrong_size_is_one_line_error_naming_the_file(tmp_path):
     assert "videos/cam1.avi: frame size 96x72 does not match calibration 160x120" in line
 
 
-def test_malformed_messages_are_counted_and_skipped(tiny_recording, tmp_path):
+def test_malformed_messages_are_counted_and_skipped(long_recording, tmp_path):
     out = tmp_path / "out"
-    proc = start_smartroom("run", "--recording", tiny_recording, "--headless", "--out", out)
+    proc = start_smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", out)
     layout_file = out / "layout.yaml"
-    for _ in range(100):
+    for _ in range(200):
         if layout_file.is_file():
             break
         time.sleep(0.05)
     layout = yaml.safe_load(layout_file.read_text())
     session = open_session(BusConfig(connect=layout["bus"]["connect"]))
     keys = Keys(layout["room"])
+    alive = set()
+    sub = session.liveliness().declare_subscriber(keys.alive(), lambda s: alive.add(Keys.last(s.key_expr)),
+                                                  history=True)
     try:
-        time.sleep(1.0)
+        for _ in range(1200):
+            if {"segmentation", "reconstruction"} <= alive:
+                break
+            time.sleep(0.05)
+        time.sleep(0.5)
         for payload in (b"", b"garbage", b"SRM\x01" + bytes(40), b"\xff" * 1000):
             session.put(keys.frame("cam0"), payload)
+            session.put(keys.mask("cam1"), payload)
             time.sleep(0.05)
     finally:
+        sub.undeclare()
         session.close()
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=90)
     assert proc.returncode == 0, err
     s = _stats(out)
-    seg = s["workers"]["segmentation"]
-    assert seg["bad_messages"] >= 1
-    assert s["stages"]["segmentation"]["frames_out"] >= 55  # the stream went on
+    for stage in ("segmentation", "reconstruction"):
+        assert s["workers"][stage]["bad_messages"] >= 3, stage
+        assert s["stages"][stage]["frames_out"] >= 95, stage  # the stream went on
 
 
 def test_crashed_worker_is_restarted_and_the_run_still_ends(long_recording, tmp_path):

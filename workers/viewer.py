@@ -137,14 +137,14 @@ class Viewer(Worker):
         self._next_status = time.monotonic() + STATUS_PERIOD_S
         rows = self.pipeline.rows()
         rtf = self.pipeline.rtf(rows)
-        deepest = self.pipeline.deepest(rows)
+        limiting = self.pipeline.limiting(rows)
         parts = []
         if self.shown_frame >= 0:
             parts.append(f"frame {self.shown_frame}")
         if rtf is None:
-            parts.append("RTF - (waiting for the stages)" if deepest is None else f"{deepest.fps_out:.1f} fps")
+            parts.append("RTF - (waiting for the stages)" if limiting is None else f"{limiting.fps_out:.1f} fps")
         else:
-            parts += [f"RTF {rtf:.2f}", f"{deepest.fps_out:.1f} fps"]
+            parts += [f"RTF {rtf:.2f}", f"{limiting.fps_out:.1f} fps"]
         if ended:
             parts.append("stream ended")
         colour = (1.0, 1.0, 1.0) if rtf is None else OK_COLOUR if rtf >= REAL_TIME else BEHIND_COLOUR

@@ -37,7 +37,7 @@ def _load_traces(out: Path) -> dict:
 
 
 def _rtf_over_time(times: np.ndarray, t0: float, fps: float) -> list[list[float]]:
-    """Output rate of the deepest stage in sliding windows (1 s, shorter for short runs),
+    """Output rate of the slowest stage in sliding windows (1 s, shorter for short runs),
     divided by the recording fps."""
     if times.size < 2 or not fps:
         return []
@@ -74,7 +74,9 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
     report = {"exit_code": rc, "wall_s": round(wall, 3), "recording_fps": fps_rec, "frames": run.frames,
               "paced": run.pace, "rtf": stats.get("rtf"), "fps": stats.get("fps"),
               "end_to_end_latency_ms": stats.get("end_to_end_latency_ms"), "stages": {}}
-    deepest = max(stages, key=lambda n: stages[n]["order"]) if stages else None
+    limiting = stats.get("final_stage")  # the slowest stage sets the pipeline's pace
+    if limiting not in stages:
+        limiting = max(stages, key=lambda n: stages[n]["order"]) if stages else None
     for name, s in sorted(stages.items(), key=lambda kv: kv[1]["order"]):
         rows = s["rows"]
         lat = (rows[:, 3] - rows[:, 1]) * 1e3
@@ -90,9 +92,9 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
             # per frame: [frame, seconds since the first capture, latency from capture (ms)]
             "per_frame": [[int(r[0]), round(float(r[3] - t0), 4), round(float(v), 3)] for r, v in zip(rows, lat)],
         }
-    if deepest is not None:
-        report["rtf_over_time"] = _rtf_over_time(stages[deepest]["rows"][:, 3], t0, fps_rec)
-        report["final_stage"] = deepest
+    if limiting is not None:
+        report["rtf_over_time"] = _rtf_over_time(stages[limiting]["rows"][:, 3], t0, fps_rec)
+        report["final_stage"] = limiting
     return report
 
 
