@@ -28,6 +28,7 @@ import yaml
 
 from app.bus import BusConfig
 from app.errors import InputError
+from app.files import read_yaml, write_atomic
 
 __all__ = ["LayoutError", "WorkerSpec", "RunSpec", "Layout", "load_layout", "parse_layout",
            "default_layout_path", "load_overrides", "apply_overrides", "parse_assignment"]
@@ -90,11 +91,7 @@ class Layout:
         }
 
     def save(self, path) -> None:
-        p = Path(path)
-        tmp = p.with_name(p.name + ".partial")
-        with open(tmp, "w", encoding="utf-8") as fh:
-            yaml.safe_dump(self.to_dict(), fh, sort_keys=False)
-        os.replace(tmp, p)
+        write_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     def copy(self) -> "Layout":
         return copy.deepcopy(self)
@@ -205,30 +202,15 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
     return Layout(room=room, bus=bus, workers=workers, run=run, path=path)
 
 
-def _read_yaml(path, what: str):
-    p = Path(path)
-    if not p.is_file():
-        raise LayoutError(f"{p}: {what} not found")
-    try:
-        with open(p, encoding="utf-8") as fh:
-            return yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" (line {mark.line + 1})" if mark is not None else ""
-        raise LayoutError(f"{p}: not valid YAML{line}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LayoutError(f"{p}: cannot be read ({exc.__class__.__name__})") from None
-
-
 def load_layout(path=None) -> Layout:
     """Read and validate a layout file (default: ``deploy/layouts/local.yaml``)."""
     p = Path(path) if path else default_layout_path()
-    return parse_layout(_read_yaml(p, "layout file"), str(p))
+    return parse_layout(read_yaml(p, "layout file", LayoutError), str(p))
 
 
 def load_overrides(path) -> dict:
     """A ``--config`` file: ``{worker name or kind: {param: value}}``."""
-    data = _read_yaml(path, "config file") or {}
+    data = read_yaml(path, "config file", LayoutError) or {}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise LayoutError(f"{path}: expected a mapping of worker name or kind to parameters")
     return data

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from app.errors import InputError
+from app.files import read_jsonl
 from calibration import Calibration, load_calibration, save_calibration
 
 __all__ = ["RecordingError", "Recording", "RecordingWriter", "VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS"]
@@ -183,17 +184,7 @@ class Recording:
     def groundtruth(self) -> list[dict] | None:
         """The parsed ``groundtruth.jsonl`` (one object per frame), or None."""
         p = self.path / "groundtruth.jsonl"
-        if not p.is_file():
-            return None
-        out = []
-        with open(p, encoding="utf-8") as fh:
-            for n, line in enumerate(fh, 1):
-                if line.strip():
-                    try:
-                        out.append(json.loads(line))
-                    except json.JSONDecodeError:
-                        raise RecordingError(f"{p.name}: line {n} is not valid JSON") from None
-        return out
+        return read_jsonl(p, RecordingError) if p.is_file() else None
 
 
 class RecordingWriter:

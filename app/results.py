@@ -8,15 +8,15 @@ when complete.
 """
 from __future__ import annotations
 
-import json
 import os
 import struct
 from pathlib import Path
 
 from app.errors import InputError
+from app.files import partial_path
 from app.messages import MessageError, Voxels, decode, encode
 
-__all__ = ["VoxelWriter", "iter_voxels", "read_jsonl"]
+__all__ = ["VoxelWriter", "iter_voxels"]
 
 _LEN = struct.Struct("<Q")
 
@@ -24,7 +24,7 @@ _LEN = struct.Struct("<Q")
 class VoxelWriter:
     def __init__(self, path: Path):
         self.path = Path(path)
-        self.tmp = self.path.with_name(self.path.name + ".partial")
+        self.tmp = partial_path(self.path)
         self.fh = open(self.tmp, "wb")
         self.count = 0
 
@@ -60,17 +60,3 @@ def iter_voxels(path):
                 raise InputError(f"{path}: record {n} is a {type(msg).__name__}, not voxels")
             n += 1
             yield msg
-
-
-def read_jsonl(path) -> list[dict]:
-    """A JSON-lines file as a list (one-line error naming the line when malformed)."""
-    path = Path(path)
-    out = []
-    with open(path, encoding="utf-8") as fh:
-        for n, line in enumerate(fh, 1):
-            if line.strip():
-                try:
-                    out.append(json.loads(line))
-                except json.JSONDecodeError:
-                    raise InputError(f"{path}: line {n} is not valid JSON") from None
-    return out

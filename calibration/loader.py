@@ -6,7 +6,6 @@ file, the camera and the field, e.g.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 import yaml
 
 from app.errors import InputError
+from app.files import read_yaml, write_atomic
 from calibration.camera import Camera
 
 __all__ = ["Calibration", "CalibrationError", "load_calibration", "save_calibration"]
@@ -132,19 +132,7 @@ def load_calibration(path) -> Calibration:
     p = Path(path)
     if p.is_dir():
         p = p / "calibration.yaml"
-    shown = str(p)
-    if not p.is_file():
-        raise CalibrationError(f"{shown}: file not found")
-    try:
-        with open(p, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" (line {mark.line + 1})" if mark is not None else ""
-        raise CalibrationError(f"{shown}: not valid YAML{line}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(f"{shown}: cannot be read ({exc.__class__.__name__})") from None
-    return parse_calibration(data, shown)
+    return parse_calibration(read_yaml(p, "file", CalibrationError), str(p))
 
 
 def save_calibration(calib: Calibration, path) -> None:
@@ -152,7 +140,4 @@ def save_calibration(calib: Calibration, path) -> None:
     p = Path(path)
     if p.is_dir():
         p = p / "calibration.yaml"
-    tmp = p.with_name(p.name + ".partial")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        yaml.safe_dump(calib.to_dict(), fh, sort_keys=False, default_flow_style=None, width=120)
-    os.replace(tmp, p)
+    write_atomic(p, yaml.safe_dump(calib.to_dict(), sort_keys=False, default_flow_style=None, width=120))

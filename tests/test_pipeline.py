@@ -4,14 +4,12 @@ import os
 import signal
 import time
 
-import numpy as np
 import pytest
 import yaml
-import zenoh
 
 from app.bus import BusConfig, Keys, open_session
 from tests.conftest import smartroom, start_smartroom
-from tests.synthetic import tiny_calibration, write_tiny_recording
+from tests.synthetic import write_tiny_recording
 
 pytestmark = pytest.mark.integration
 

@@ -13,9 +13,7 @@ worker finish at once (files completed, final stats published).
 """
 from __future__ import annotations
 
-import json
 import logging
-import os
 import signal
 import sys
 import threading
@@ -26,6 +24,7 @@ from typing import ClassVar
 
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.config import Layout, WorkerSpec
+from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 
@@ -342,9 +341,7 @@ class Worker:
         data = {"worker": self.name, "stage": self.stage, "order": self.ORDER,
                 "frames": [[f, *v] for f, v in sorted(self.ledger.trace.items())],
                 "process_ms": [round(v, 3) for v in self.ledger.process_ms]}
-        tmp = folder / f"{self.name}.json.partial"
-        tmp.write_text(json.dumps(data))
-        os.replace(tmp, folder / f"{self.name}.json")
+        write_json(folder / f"{self.name}.json", data, indent=None)
 
     def _finish(self) -> None:
         try:

@@ -14,18 +14,12 @@ import os
 import time
 from pathlib import Path
 
+from app.files import partial_path, write_json
 from app.messages import JOINTS, Poses, Stats, Tracks, Voxels
 from app.results import VoxelWriter
 from app.stats import summarise
 from workers import worker_class
 from workers.base import Worker
-
-
-def write_json_atomic(path: Path, data) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=1)
-    os.replace(tmp, path)
 
 
 def _r(v, nd=4):
@@ -37,7 +31,7 @@ class _JsonLines:
 
     def __init__(self, path: Path):
         self.path = path
-        self.tmp = path.with_name(path.name + ".partial")
+        self.tmp = partial_path(path)
         self.fh = open(self.tmp, "w", encoding="utf-8")
         self.last_frame = -1
         self.ordered = True
@@ -118,7 +112,7 @@ class Recorder(Worker):
         summary = summarise(self.stages, fps, frames if self.stream is not None else None)
         summary["complete"] = final
         summary["workers"] = {name: s["figures"] for name, s in self.stages.items()}
-        write_json_atomic(self.out / "stats.json", summary)
+        write_json(self.out / "stats.json", summary)
         self._last_write = time.monotonic()
 
     def close(self) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from app.config import Layout, RunSpec, apply_overrides
+from app.files import write_json
 
 __all__ = ["profile_run", "profile", "sweep_values", "write_figure", "summary_lines", "SWEEP_ALIASES"]
 
@@ -105,15 +106,9 @@ def profile(layout: Layout, run: RunSpec, out: Path, modes=("unpaced", "paced"),
     for mode in modes:
         r = RunSpec(**{**run.__dict__, "pace": MODES[mode]})
         result["modes"][mode] = profile_run(layout, r, out / mode, progress=progress)
-    _write_json(out / "profile.json", result)
+    write_json(out / "profile.json", result)
     write_figure(result, out / "profile.png")
     return result
-
-
-def _write_json(path: Path, data) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
 
 
 def sweep_values(layout: Layout, spec: str) -> list[tuple[str, Layout]]:

@@ -1,0 +1,64 @@
+"""Reading and writing the project's small files, once: YAML and JSON-lines readers
+with one-line errors, and writers that write a temporary ``.partial`` file and rename
+it, so a file with its final name is always complete."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import yaml
+
+from app.errors import InputError
+
+__all__ = ["partial_path", "write_atomic", "write_json", "read_yaml", "read_jsonl"]
+
+
+def partial_path(path) -> Path:
+    """Where ``path`` is written before it is renamed into place."""
+    p = Path(path)
+    return p.with_name(p.name + ".partial")
+
+
+def write_atomic(path, data: str | bytes) -> None:
+    """Write text or bytes to ``path`` through a ``.partial`` file and a rename."""
+    tmp = partial_path(path)
+    if isinstance(data, bytes):
+        tmp.write_bytes(data)
+    else:
+        tmp.write_text(data, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def write_json(path, data, indent: int | None = 1) -> None:
+    write_atomic(path, json.dumps(data, indent=indent))
+
+
+def read_yaml(path, what: str, error=InputError):
+    """Parse a YAML file; ``error(message)`` names the file, and the line when malformed."""
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{p}: {what} not found")
+    try:
+        with open(p, encoding="utf-8") as fh:
+            return yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        raise error(f"{p}: not valid YAML{line}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{p}: cannot be read ({exc.__class__.__name__})") from None
+
+
+def read_jsonl(path, error=InputError) -> list[dict]:
+    """A JSON-lines file as a list; ``error(message)`` names the malformed line."""
+    p = Path(path)
+    out = []
+    with open(p, encoding="utf-8") as fh:
+        for n, line in enumerate(fh, 1):
+            if line.strip():
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError:
+                    raise error(f"{p}: line {n} is not valid JSON") from None
+    return out
