@@ -59,11 +59,13 @@ def parse_live(items) -> dict:
 
 
 class _CameraThread(threading.Thread):
-    """Reads one live camera as fast as it delivers, keeping only the newest image."""
+    """Reads one live camera as fast as it delivers, keeping only the newest image
+    (a video file given as a camera is read at the camera's fps)."""
 
-    def __init__(self, name: str, source, width: int, height: int, reopen_s: float = 2.0):
+    def __init__(self, name: str, source, width: int, height: int, fps: float, reopen_s: float = 2.0):
         super().__init__(daemon=True, name=f"camera-{name}")
         self.cam, self.source, self.size = name, source, (width, height)
+        self.period = 1.0 / fps
         self.reopen_s = reopen_s
         self.lock = threading.Lock()
         self.latest: np.ndarray | None = None
@@ -88,6 +90,12 @@ class _CameraThread(threading.Thread):
                     self._failed("cannot be opened")
                     self.stopped.wait(self.reopen_s)
                     continue
+                # a video file (it knows its length) is read at the camera's rate, not at once
+                self.paced = self.cap.get(cv2.CAP_PROP_FRAME_COUNT) > 0
+                self.next_read = time.monotonic()
+            if self.paced:  # a file played as a camera delivers at the camera's rate
+                self.stopped.wait(max(0.0, self.next_read - time.monotonic()))
+                self.next_read = max(self.next_read + self.period, time.monotonic() - self.period)
             ok, img = self.cap.read()
             if not ok or img is None:
                 self.cap.release()
@@ -132,8 +140,8 @@ class LiveSource:
             calibration.camera(c)
         self.fps = calibration.fps
         self.expected = frames
-        self.threads = {c: _CameraThread(c, sources[c], calibration.camera(c).width, calibration.camera(c).height)
-                        for c in self.cameras}
+        self.threads = {c: _CameraThread(c, sources[c], calibration.camera(c).width, calibration.camera(c).height,
+                                         self.fps) for c in self.cameras}
         self.start = 0
         self._closed = threading.Event()
 

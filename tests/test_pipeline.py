@@ -146,3 +146,22 @@ def test_ctrl_c_ends_the_stream_and_completes_files(long_recording, tmp_path):
 def test_unknown_worker_name(tmp_path):
     line = _one_line_error(smartroom("worker", "nobody"))
     assert "no worker named 'nobody'" in line
+
+
+def test_live_cameras_and_a_camera_that_stops(tmp_path):
+    """Live sources are cv2.VideoCapture URLs (here: video files); cam1's ends early and the
+    run goes on with cam0."""
+    long_rec = write_tiny_recording(tmp_path / "a", frames=80)
+    short_rec = write_tiny_recording(tmp_path / "b", frames=10)
+    out = tmp_path / "out"
+    r = smartroom("run", "--live", f"cam0={long_rec / 'videos' / 'cam0.avi'}",
+                  "--live", f"cam1={short_rec / 'videos' / 'cam1.avi'}",
+                  "--calibration", long_rec / "calibration.yaml", "--frames", 40, "--headless", "--out", out,
+                  timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "camera cam1" in r.stderr and "stopped delivering frames" in r.stderr
+    s = _stats(out)
+    assert s["stages"]["grabber"]["frames_out"] == 40
+    seg = s["workers"]["segmentation"]
+    assert seg["items_in"] < 2 * 40  # cam1 missed most frames
+    assert s["stages"]["reconstruction"]["frames_out"] >= 30  # reconstructed without cam1

@@ -20,6 +20,8 @@ from app.messages import Mask, Voxels
 from app.segmentation import working_size
 from workers.base import Worker
 
+MAX_BACKLOG = 2   # frames ready at once beyond which the stage is behind and skips to the newest
+
 
 class Reconstruction(Worker):
     KIND = "reconstruction"
@@ -106,22 +108,21 @@ class Reconstruction(Worker):
         return {n for n, t in self.last_seen.items() if now - t <= timeout}
 
     def _decide(self, now: float, final: bool = False) -> None:
-        """Reconstruct the newest frame that is complete or waited long enough; drop older ones."""
+        """Reconstruct the frames that are complete or waited long enough, oldest first;
+        when more than ``MAX_BACKLOG`` are ready the stage is behind: only the newest is
+        reconstructed and the older ones are dropped (counted by the ledger)."""
         if not self.pending:
             return
         live = self._live_cameras(now)
         wait = self.params["wait_ms"] / 1e3
-        ready = [f for f, e in self.pending.items()
-                 if final or set(e["masks"]) >= live or now - e["first"] >= wait]
-        if not ready:
-            return
-        frame = max(ready)
-        for f in [f for f in self.pending if f < frame]:
-            del self.pending[f]   # older frames are dropped (counted by the ledger)
-        self._reconstruct(frame, self.pending.pop(frame)["masks"])
-        if final:
-            for f in sorted(self.pending):
-                self._reconstruct(f, self.pending.pop(f)["masks"])
+        ready = sorted(f for f, e in self.pending.items()
+                       if final or set(e["masks"]) >= live or now - e["first"] >= wait)
+        if len(ready) > MAX_BACKLOG and not final:
+            ready = ready[-1:]
+        for frame in ready:
+            for f in [f for f in self.pending if f < frame]:
+                del self.pending[f]   # never reconstruct out of order
+            self._reconstruct(frame, self.pending.pop(frame)["masks"])
 
     def tick(self) -> None:
         if self.pending:
