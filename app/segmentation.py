@@ -6,9 +6,17 @@ improved Stauffer-Grimson) with a chromaticity/brightness shadow test: pixels it
 labels as shadow (value 127) are background here. A small morphological opening
 and closing removes speckle and fills pinholes.
 
-Speed: the mask is computed at ``1/scale`` of the camera resolution (default half:
-320x240 for a 640x480 camera), a resolution matched to the projected footprint of
-a 2-4 cm voxel at room distances, which costs a quarter of the full-size model.
+Speed: the mask is computed at ``1/scale`` of the camera resolution, a resolution
+matched to the projected footprint of the reconstruction's voxels
+(:func:`matched_scale`: half size for 2 cm voxels, quarter size for 4 cm, in the
+simulated room), which costs a quarter or a sixteenth of the full-size model.
+
+Learning rate: MOG2 takes a new colour into the background once its weight passes
+``1 - background ratio`` (0.1), i.e. after about ``0.1 / rate`` frames. OpenCV's
+automatic rate (1/history, 1/500) lets a person who stands still for 2 s fade into
+the background; the default 1e-4 takes 40 s, and still follows slow light changes.
+A model that starts without an empty-room image learns at MOG2's fast start-up rate
+for ``bootstrap`` frames first.
 """
 from __future__ import annotations
 
@@ -17,18 +25,19 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-__all__ = ["SegmentationParams", "CameraSegmenter", "estimate_background", "working_size"]
+__all__ = ["SegmentationParams", "CameraSegmenter", "estimate_background", "working_size", "matched_scale", "shrink"]
 
 
 @dataclass
 class SegmentationParams:
     scale: int = 2                  # the mask is 1/scale of the image size
-    history: int = 500              # frames of MOG2 memory
+    history: int = 500              # frames of MOG2 memory (its automatic rate is 1/history)
     var_threshold: float = 16.0     # squared Mahalanobis distance for foreground
     shadows: bool = True            # detect shadows (and treat them as background)
     shadow_threshold: float = 0.5   # MOG2 tau: a shadow is at most this much darker
-    learning_rate: float = -1.0     # -1: 1/history (MOG2's fast start-up rate when it has no background)
-    open_px: int = 3                # opening kernel (removes speckle); 0 = none
+    learning_rate: float = 1e-4     # per frame; -1: MOG2's automatic 1/history
+    bootstrap: int = 100            # frames at the automatic rate when there is no background image
+    open_px: int = 0                # opening kernel (removes speckle, and thin limbs); 0 = none
     close_px: int = 5               # closing kernel (fills holes); 0 = none
 
     @classmethod
@@ -43,11 +52,19 @@ def working_size(width: int, height: int, scale: int) -> tuple[int, int]:
     return width // scale, height // scale
 
 
-def _shrink(image: np.ndarray, scale: int) -> np.ndarray:
-    if scale <= 1:
-        return image
+def shrink(image: np.ndarray, scale: int) -> np.ndarray:
+    """An image downscaled by an integer factor (pixel averaging). Powers of two go by
+    repeated halving, several times faster than one ``INTER_AREA`` resize."""
+    scale = max(1, int(scale))
     h, w = image.shape[:2]
-    return cv2.resize(image, working_size(w, h, scale), interpolation=cv2.INTER_AREA)
+    tw, th = working_size(w, h, scale)
+    while scale > 1 and scale % 2 == 0:
+        h, w = image.shape[:2]
+        image = cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        scale //= 2
+    if image.shape[1] != tw or image.shape[0] != th:
+        image = cv2.resize(image, (tw, th), interpolation=cv2.INTER_AREA)
+    return image
 
 
 def estimate_background(images) -> np.ndarray:
@@ -68,26 +85,42 @@ class CameraSegmenter:
             self.model.setShadowThreshold(params.shadow_threshold)
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.open_px,) * 2) if params.open_px else None
         self._close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.close_px,) * 2) if params.close_px else None
-        # MOG2's automatic rate is 1/min(2n, history) after n frames: right for a model
-        # that starts empty, far too fast for one trained on the empty room (a person
-        # standing still would melt into the background within frames).
-        self.rate = params.learning_rate
+        self.trained = False
+        self.frames = 0
+        self.small: np.ndarray | None = None   # the last frame at the mask's size
         if background is not None:
             self.learn_background([background])
 
     def learn_background(self, images) -> None:
         """Train the model on empty-room images (running mean over them)."""
         for i, img in enumerate(images):
-            self.model.apply(_shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
-        if self.params.learning_rate < 0:
-            self.rate = 1.0 / max(1, self.params.history)
+            self.model.apply(shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
+        self.trained = True
 
     def apply(self, image: np.ndarray) -> np.ndarray:
         """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting."""
-        raw = self.model.apply(_shrink(image, self.params.scale), learningRate=self.rate)
+        self.frames += 1
+        fast = not self.trained and self.frames <= self.params.bootstrap
+        rate = -1.0 if fast else self.params.learning_rate
+        self.small = shrink(image, self.params.scale)
+        raw = self.model.apply(self.small, learningRate=rate)
         fg = (raw == 255).astype(np.uint8)
         if self._open is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._open)
         if self._close is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._close)
         return fg.view(bool)
+
+
+def matched_scale(calibration, voxel_size: float, pixels: float = 1.25) -> int:
+    """The mask downscale (a power of two) at which a voxel still spans about
+    ``pixels`` pixels, seen from the median camera-to-room-centre distance."""
+    centre = (np.asarray(calibration.room_min) + np.asarray(calibration.room_max)) / 2
+    cams = calibration.cameras
+    dist = float(np.median([np.linalg.norm(c.centre - centre) for c in cams]))
+    focal = float(np.median([c.K[0, 0] for c in cams]))
+    footprint = focal * voxel_size / max(dist, 1e-6)
+    scale = 1
+    while footprint / (2 * scale) >= pixels and scale < 8:
+        scale *= 2
+    return scale

@@ -35,7 +35,7 @@ def test_sweep_tabulates_rtf_per_value(tiny_recording, tmp_path):
     assert r.returncode == 0, r.stderr
     table = r.stdout[r.stdout.index("value"):].splitlines()
     assert table[1].startswith("segmentation.history=50") and table[2].startswith("segmentation.history=200")
-    assert float(table[1].split()[1]) > 1.0
+    assert float(table[1].split()[1]) > 0 and float(table[2].split()[1]) > 0
 
 
 def test_bus_benchmark_between_two_processes(tmp_path):

@@ -399,3 +399,18 @@ def test_no_colouring_and_empty_frames(calib, frame):
     # no colour images: the surface (geometric) but no colours
     idx, colours, surface, _ = Reconstructor(calib, VOXEL).reconstruct(masks)
     assert len(idx) > 0 and colours.shape == (0, 3) and surface.shape == (len(idx),) and surface.any()
+
+
+def test_floor_blob_filter_drops_low_blobs_only():
+    from app.reconstruction.floor import FloorBlobFilter
+
+    box = lambda x0, x1, z1: np.mgrid[x0:x1, 10:14, 0:z1].reshape(3, -1).T  # noqa: E731
+    person = box(10, 14, 80)            # 1.6 m tall at 2 cm
+    shadow = box(20, 28, 6)             # 12 cm high: a floor shadow
+    foot_shadow = np.mgrid[14:18, 10:14, 0:2].reshape(3, -1).T  # joined to the person
+    crouch = box(40, 50, 14)            # 28 cm: reaches min_top, kept
+    voxels = np.concatenate([person, shadow, foot_shadow, crouch]).astype(np.uint16)
+    f = FloorBlobFilter(0.02, 0.0, (60, 30, 100), min_top=0.25)
+    kept = {tuple(v) for v in f(voxels)}
+    assert kept == {tuple(v) for v in np.concatenate([person, foot_shadow, crouch])}
+    assert len(FloorBlobFilter(0.02, 0.0, (60, 30, 100), min_top=0.0)(voxels)) == len(voxels)

@@ -1,6 +1,7 @@
 """Segmentation worker: one background model per camera, one or many cameras per
 process. Publishes each camera's bit-packed foreground mask (at ``1/scale`` of the
-image size) with the downscaled colour image that voxel colouring needs.
+image size; by default the scale matched to the layout's voxel size) with the
+downscaled colour image that voxel colouring needs.
 
 The background model starts from the recording's ``background/<cam>.png`` when there
 is one; otherwise from the per-pixel temporal median of frames spread across the
@@ -9,12 +10,25 @@ the stream.
 """
 from __future__ import annotations
 
-import cv2
-
 from app.messages import Frame, Mask
 from app.recording import Recording
-from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, working_size
+from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, matched_scale, shrink
 from workers.base import Worker
+
+DEFAULT_SCALE = 2
+
+
+def scales(spec, layout, calibration) -> tuple[int, int]:
+    """``(mask scale, colour scale)`` of a segmentation worker of ``layout``: its
+    ``scale`` parameter, or (0, auto) the scale matched to the voxel size of the
+    layout's reconstruction; ``colour_scale`` -1 follows the mask, 0 sends no colour.
+    The reconstruction worker builds its tables with the same function."""
+    scale = spec.params.get("scale", DEFAULT_SCALE)
+    if not scale:
+        sizes = [w.params["voxel_size"] for w in layout.workers if w.kind == "reconstruction"]
+        scale = matched_scale(calibration, min(sizes)) if sizes and calibration is not None else DEFAULT_SCALE
+    colour = spec.params.get("colour_scale", -1)
+    return int(scale), int(scale if colour < 0 else colour)
 
 
 class Segmentation(Worker):
@@ -24,22 +38,29 @@ class Segmentation(Worker):
     PRODUCES = ("mask",)
     DEFAULTS = {
         "cameras": "all",
-        "scale": 2,                  # masks at 1/scale of the image size
+        "scale": 0,                  # masks at 1/scale of the image size; 0: matched to the voxel size
         "history": 500,
         "var_threshold": 16.0,
         "shadows": True,
         "shadow_threshold": 0.5,
-        "learning_rate": -1.0,
-        "open_px": 3,
+        "learning_rate": 1e-4,       # per frame (-1: MOG2's automatic 1/history)
+        "bootstrap": 100,            # frames at the automatic rate without a background image
+        "open_px": 0,
         "close_px": 5,
-        "colour_scale": 2,           # colour image sent at 1/colour_scale (0: no colour)
+        "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
     }
 
     def setup(self) -> None:
-        self.seg_params = SegmentationParams.from_params(self.params)
+        from calibration import load_calibration
+
+        run = self.layout.run
+        self.recording = Recording(run.recording) if run.recording else None
+        calib = self.recording.calibration if self.recording else (load_calibration(run.calibration)
+                                                                    if run.calibration else None)
+        self.scale, self.colour_scale = scales(self.spec, self.layout, calib)
+        self.seg_params = SegmentationParams.from_params({**self.params, "scale": self.scale})
         self.segmenters: dict[str, CameraSegmenter] = {}
-        self.recording = Recording(self.layout.run.recording) if self.layout.run.recording else None
         if self.recording is not None:  # build the models before the first frame arrives
             for cam in self.cameras() or self.recording.cameras:
                 self._segmenter(cam)
@@ -63,14 +84,14 @@ class Segmentation(Worker):
         return seg
 
     def handle(self, key: str, msg: Frame) -> None:
-        mask = self._segmenter(msg.camera).apply(msg.image)
-        scale = self.params["colour_scale"]
+        seg = self._segmenter(msg.camera)
+        mask = seg.apply(msg.image)
+        scale = self.colour_scale
         colour = None
-        if scale == 1:
-            colour = msg.image
-        elif scale > 1:
-            h, w = msg.image.shape[:2]
-            colour = cv2.resize(msg.image, working_size(w, h, scale), interpolation=cv2.INTER_AREA)
+        if scale == self.scale:
+            colour = seg.small   # the frame the mask was computed on
+        elif scale:
+            colour = shrink(msg.image, scale)
         self.publish(self.keys.mask(msg.camera),
                      Mask.pack(mask, frame=msg.frame, stamp=msg.stamp, t=msg.t, camera=msg.camera,
                                colour_scale=max(1, scale), colour=colour))

@@ -5,6 +5,10 @@
   in ``--out``. ``--sweep voxel=2,3,4,5`` (or ``--sweep worker.param=a,b``) repeats it
   and tabulates RTF against the parameter.
 - ``smartroom bench bus``: codec + zenoh latency and throughput between two processes.
+- ``smartroom bench reconstruction``: segmentation + reconstruction + colouring + surface
+  per frame on one core for voxel sizes x methods x colourings, and accuracy against
+  the true body volume (default: the simulated meeting3 with 5 cameras).
+- ``smartroom bench simulate``: render time per multi-camera frame of a simulated scene.
 """
 from __future__ import annotations
 
@@ -14,14 +18,18 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate")
 
 
 def add_arguments(p) -> None:
     p.add_argument("target", nargs="?", default="pipeline", choices=TARGETS, help="what to measure (default pipeline)")
     add_pipeline_arguments(p)
     p.add_argument("--sweep", metavar="P=V1,V2", help="repeat over a parameter: voxel=2,3,4,5 or worker.param=a,b")
-    p.add_argument("--modes", default="unpaced,paced", help="which runs: unpaced, paced or both (default)")
+    p.add_argument("--modes", default="unpaced,paced", help="pipeline: unpaced, paced or both (default)")
+    p.add_argument("--voxel-sizes", default="2,3,4,5", help="reconstruction: voxel sizes in cm (default 2,3,4,5)")
+    p.add_argument("--tolerance", type=int, default=1, help="reconstruction: k, cameras that may miss a voxel")
+    p.add_argument("--min-top", type=float, default=0.25,
+                   help="reconstruction: drop blobs lower than this (m); 0 = the thesis (keep all)")
 
 
 def _bus(args, out: Path) -> dict:
@@ -68,8 +76,35 @@ def _pipeline(args, out: Path) -> dict:
     return {"sweep": args.sweep, "runs": {label: r for label, r in rows}}
 
 
+def _reconstruction(args, out: Path) -> dict:
+    from app.benchmarks import reconstruction
+    from app.errors import InputError
+
+    if args.recording is None:
+        args.zenithal = True  # issue 4 measures 5 cameras
+    run = resolve_source(args)
+    try:
+        sizes = tuple(float(v) / 100 for v in args.voxel_sizes.split(","))
+    except ValueError:
+        raise InputError(f"--voxel-sizes {args.voxel_sizes}: expected centimetres like 2,3,4,5") from None
+    frames = args.frames or 60
+    print(f"smartroom bench reconstruction: {frames} frames of {run.recording}", file=sys.stderr)
+    print(reconstruction.HEADER)
+    result = reconstruction.run(run.recording, frames=frames + 10, voxel_sizes=sizes, tolerance=args.tolerance,
+                                min_top=args.min_top)
+    print(reconstruction.format_table(result))
+    return result
+
+
+def _simulate(args, out: Path) -> dict:
+    from app.simulation.bench import bench_render
+
+    return bench_render(args.scene, frames=args.frames or 50, seconds=args.seconds, zenithal=args.zenithal)
+
+
 def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
-    figures = {"bus": _bus, "pipeline": _pipeline}[args.target](args, out)
+    figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction,
+               "simulate": _simulate}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0

@@ -1,25 +1,64 @@
-"""``smartroom eval --recording DIR --results DIR``: score results against ground truth."""
+"""``smartroom eval --recording DIR --results DIR``: score results against ground truth.
+
+Scores what the results hold: the reconstruction (``voxels.bin``, written when the
+recorder runs with ``voxels: true``) against the true body volume of a simulated
+recording (``bodies.jsonl``): recall, precision, spurious voxels and floor shadows.
+Writes ``eval.json`` into the results folder and prints a summary.
+"""
 from __future__ import annotations
+
+from pathlib import Path
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--recording", required=True, metavar="DIR", help="recording folder with groundtruth.jsonl")
+    p.add_argument("--recording", required=True, metavar="DIR", help="recording folder with ground truth")
     p.add_argument("--results", required=True, metavar="DIR", help="results folder of smartroom run")
+    p.add_argument("--near", type=float, default=0.10,
+                   help="a voxel within this distance (m) of a body is not spurious (default 0.10)")
+
+
+def evaluate_reconstruction(recording: Path, voxels_path: Path, near: float = 0.10) -> dict:
+    """Per-frame scores and their summary for a ``voxels.bin`` of a simulated recording."""
+    from app.evaluation.reconstruction import score_frame, summarise_scores
+    from app.results import iter_voxels
+    from app.simulation.occupancy import load_bodies, true_occupancy
+
+    bodies = {rec["frame"]: rec for rec in load_bodies(recording)}
+    scores = []
+    for msg in iter_voxels(voxels_path):
+        record = bodies.get(msg.frame)
+        if record is None:
+            continue
+        truth = true_occupancy(record, msg.origin, msg.voxel_size, msg.dims)
+        scores.append(score_frame(msg.frame, msg.indices, truth, msg.dims, msg.voxel_size, near=near))
+    summary = summarise_scores(scores)
+    summary["voxel_size"] = msg.voxel_size if scores else None
+    return {"summary": summary, "frames": [s.as_dict() for s in scores]}
 
 
 def main(args) -> int:
-    from pathlib import Path
-
     from app.errors import InputError
+    from app.files import write_json
     from app.recording import Recording
 
-    rec = Recording(args.recording)
-    if rec.groundtruth() is None:
-        raise InputError(f"{args.recording}: has no groundtruth.jsonl to score against")
+    recording = Path(args.recording)
+    Recording(recording)  # validates the folder
     results = Path(args.results)
     if not results.is_dir():
         raise InputError(f"{results}: results folder not found")
-    scored = [f for f in ("tracks.jsonl", "poses.jsonl") if (results / f).is_file()]
-    if not scored:
-        raise InputError(f"{results}: holds no tracks.jsonl or poses.jsonl to score")
-    raise InputError(f"{results}: scoring of {', '.join(scored)} is not implemented yet")
+    report = {}
+    if (results / "voxels.bin").is_file():
+        if not (recording / "bodies.jsonl").is_file():
+            raise InputError(f"{recording}: has no bodies.jsonl (true body volume) to score voxels against")
+        rec = evaluate_reconstruction(recording, results / "voxels.bin", args.near)
+        report["reconstruction"] = rec
+        s = rec["summary"]
+        print(f"reconstruction at {100 * (s['voxel_size'] or 0):.0f} cm over {s['frames']} frames: "
+              f"recall {s['recall']}, precision {s['precision']}, spurious voxels {s['spurious_mean']} per frame, "
+              f"floor blobs > 20 voxels in {100 * s['frames_with_floor_blob_over_20']:.1f}% of frames "
+              f"(largest {s['floor_blob_max']})")
+    if not report:
+        raise InputError(f"{results}: holds nothing this version can score (voxels.bin: run with "
+                         "--set recorder.voxels=true)")
+    write_json(results / "eval.json", report)
+    return 0

@@ -16,6 +16,7 @@ def add_pipeline_arguments(p, source: bool = True) -> None:
         p.add_argument("--scene", default=DEFAULT_SCENE,
                        help=f"simulated scene used when no --recording is given (default {DEFAULT_SCENE})")
         p.add_argument("--seconds", type=float, default=10.0, help="length of the simulated scene (default 10)")
+        p.add_argument("--zenithal", action="store_true", help="the simulated room has a fifth, zenithal camera")
         p.add_argument("--live", action="append", metavar="CAM=SRC",
                        help="live camera: a cv2.VideoCapture device index or URL (repeat per camera)")
         p.add_argument("--calibration", metavar="FILE", help="calibration.yaml of the live cameras")
@@ -64,7 +65,7 @@ def resolve_source(args) -> RunSpec:
     path = args.recording
     if path is None:
         from app.simulation.cache import default_recording
-        path = default_recording(args.scene, seconds=args.seconds)
+        path = default_recording(args.scene, seconds=args.seconds, zenithal=args.zenithal)
     rec = Recording(path)
     frames = rec.frame_count if args.frames is None else min(args.frames, rec.frame_count)
     return RunSpec(recording=str(Path(path).resolve()), fps=rec.fps, frames=frames, pace=args.pace)

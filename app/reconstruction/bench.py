@@ -27,7 +27,7 @@ from .synthetic import meeting_scene, room_calibration
 
 __all__ = ["bench_reconstruction", "synthetic_frames", "format_table"]
 
-STEPS = ("carve", "surface", "colour", "total")
+STEPS = ("carve", "floor", "surface", "colour", "total")
 
 
 def synthetic_frames(n_frames: int = 20, calibration: Calibration | None = None, mask_size=(320, 240),
@@ -66,7 +66,8 @@ def bench_reconstruction(calibration: Calibration, frames: list, voxel_sizes=(0.
     untimed frames, then every frame ``repeat`` times. Returns one row per
     configuration: ``voxel_size, method, colouring, frames, occupied`` (p50 voxels per
     frame), ``surface_voxels`` (p50), ``<step>_p50`` / ``<step>_p95`` in ms for steps
-    carve, surface, colour, total, ``build_ms`` (tables and warm-up) and ``table_mb``.
+    carve, surface, colour, total, ``total_per_frame`` (ms, in frame order),
+    ``build_ms`` (tables and warm-up) and ``table_mb``.
     ``options`` go to :class:`Reconstructor`.
     """
     mask_sizes = _sizes(frames, 0)
@@ -92,6 +93,7 @@ def bench_reconstruction(calibration: Calibration, frames: list, voxel_sizes=(0.
                         occupied.append(len(idx))
                         surface.append(int(surf.sum()) if surf.size else 0)
                 row = {"voxel_size": vs, "method": method, "colouring": colouring, "frames": len(occupied),
+                       "total_per_frame": [round(v, 3) for v in times["total"]],
                        "occupied": int(np.median(occupied)), "surface_voxels": int(np.median(surface)),
                        "occupancy_pct": 100.0 * float(np.median(occupied)) / r.grid.n_voxels,
                        "build_ms": build_ms, "table_mb": r.table_bytes / 1e6}

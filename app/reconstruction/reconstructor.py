@@ -18,6 +18,7 @@ from calibration import Calibration
 
 from .carving import MAX_CAMERAS, carve_cells, classify_cells, fill_cells, mask_votes
 from .colouring import COLOURINGS, VoxelColourer
+from .floor import FloorBlobFilter
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
 from .projection import ProjectionTable
 
@@ -50,13 +51,15 @@ class Reconstructor:
         line of sight (see :mod:`.colouring`).
     threads : threads for the per-camera visibility (default 1, single-threaded).
     cache : also keep the projection tables on disk (``$SMARTROOM_CACHE/lut``).
+    min_top : drop connected components whose top is lower than this (m): floor shadows
+        reconstructed as matter (see :mod:`.floor`); 0, the thesis's behaviour, keeps all.
     """
 
     def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
                  colour_sizes: Mapping | None = None, tolerance: int = 1, min_views: int = 2,
                  method: str = "hierarchical", colouring: str = "visibility", brick: int = 8,
                  box_levels: int = 2, splat: float = 1.0, depth_tolerance: float = 3.0, march: int = 6,
-                 threads: int = 1, cache: bool = False, warm_up: bool = True):
+                 threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -91,6 +94,7 @@ class Reconstructor:
             self.colour_cameras.append(cc)
         self.table = ProjectionTable(self.layout, self.mask_cameras, box_levels=box_levels, cache=cache)
         self.build_ms = (time.perf_counter() - t0) * 1e3
+        self.floor = FloorBlobFilter(voxel_size, self.grid.origin[2], self.grid.dims, min_top) if min_top > 0 else None
         self.colourer = VoxelColourer(self.grid, self.colour_cameras, colouring, splat=splat,
                                       depth_tolerance=depth_tolerance, march=march, threads=threads)
         # per-frame buffers, allocated once
@@ -150,7 +154,8 @@ class Reconstructor:
 
     def carve(self, masks: Mapping) -> np.ndarray:
         """Occupied voxels (N, 3) uint16, sorted by flat id, from ``{camera: mask or None}``."""
-        return self._indices(self._carve_keys(self._upload_masks(masks)))
+        indices = self._indices(self._carve_keys(self._upload_masks(masks)))
+        return self.floor(indices) if self.floor is not None else indices
 
     def _carve_keys(self, cams: np.ndarray) -> np.ndarray:
         """Sort keys of the occupied voxels (unsorted), from the uploaded masks."""
@@ -195,7 +200,7 @@ class Reconstructor:
         Returns ``(indices, colours, surface, timings)``: occupied voxels (N, 3) uint16
         sorted by flat id, colours (N, 3) RGB uint8 (empty for ``colouring="none"``;
         zero on interior voxels), surface flags (N,) bool (empty for ``"none"`` and
-        ``"naive"``) and ``{"carve", "surface", "colour", "total"}`` in ms.
+        ``"naive"``) and ``{"carve", "floor", "surface", "colour", "total"}`` in ms.
         """
         unknown = set(masks) - set(self.names)
         if unknown:
@@ -203,7 +208,10 @@ class Reconstructor:
         t0 = time.perf_counter()
         indices = self._indices(self._carve_keys(self._upload_masks(masks)))
         t1 = time.perf_counter()
-        timings = {"carve": (t1 - t0) * 1e3, "surface": 0.0, "colour": 0.0}
+        timings = {"carve": (t1 - t0) * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
+        if self.floor is not None:
+            indices = self.floor(indices)
+            timings["floor"] = (time.perf_counter() - t1) * 1e3
         images = images or {}
         imgs = [images.get(n) for n in self.names]
         colours, surface, tc = self.colourer.colour(indices, imgs, [masks.get(n) for n in self.names])

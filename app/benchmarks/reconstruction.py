@@ -1,0 +1,137 @@
+"""``smartroom bench reconstruction``: segmentation + shape from silhouette + colouring
++ surface per frame, on one core, against the real-time budget (issue 4), and the
+reconstruction's accuracy against the true body volume.
+
+The frames of a recording (default: the simulated meeting3 with 5 cameras) go through
+the segmentation core (every camera, in order, as the worker does: masks and colour
+images at half size) and then through the reconstruction core for every voxel size x
+{flat, hierarchical} x {raw, coloured}. The table reports ms per frame (p50 and p95)
+of segmentation of all cameras, of reconstruction, and of both, and the occupied
+voxels per frame; accuracy (recall, precision, spurious voxels, floor shadow blobs)
+is scored with the hierarchical method (it gives the same voxels as the flat one).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["segment_frames", "run", "format_table", "BUDGET_MS"]
+
+#: issue 4's targets: segmentation + reconstruction + colouring + surface per frame
+BUDGET_MS = {0.02: 40.0, 0.04: 15.0}
+
+
+def segment_frames(recording, frames: int, scale: int = 2, colour_scale: int | None = None):
+    """The first ``frames`` frames through the segmentation core at one mask scale:
+    ``(calibration, [(masks, images)], segmentation ms per frame (all cameras), frame
+    indices)``; colour images at ``colour_scale`` (default: the mask scale)."""
+    from app.recording import Recording
+    from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, shrink
+
+    rec = Recording(recording)
+    colour_scale = scale if colour_scale is None else colour_scale
+    params = SegmentationParams(scale=scale)
+    segs = {}
+    for cam in rec.cameras:
+        bg = rec.background(cam)
+        segs[cam] = CameraSegmenter(params, bg if bg is not None else estimate_background(rec.sample(cam, 25)))
+    out, seg_ms, indices = [], [], []
+    for i, images in rec.frames(stop=frames):
+        t0 = time.perf_counter()
+        masks, colours = {}, {}
+        for cam, img in images.items():
+            masks[cam] = segs[cam].apply(img)
+            colours[cam] = segs[cam].small if colour_scale == scale else shrink(img, colour_scale)
+        seg_ms.append((time.perf_counter() - t0) * 1e3)
+        out.append((masks, colours))
+        indices.append(i)
+    return rec.calibration, out, np.asarray(seg_ms), indices
+
+
+def _accuracy(recording, calib, frames, indices, voxel_size: float, warmup: int, **options) -> dict:
+    """Recall, precision, spurious and ghost voxels, floor shadow blobs (hierarchical)."""
+    from app.evaluation.reconstruction import score_frame, summarise_scores
+    from app.reconstruction import Reconstructor
+    from app.simulation.occupancy import load_bodies, true_occupancy
+
+    if not (Path(recording) / "bodies.jsonl").is_file():
+        return {}
+    bodies = {r["frame"]: r for r in load_bodies(recording)}
+    masks0, images0 = frames[0]
+    r = Reconstructor(calib, voxel_size, mask_sizes={c: m.shape[::-1] for c, m in masks0.items()},
+                      colour_sizes={c: im.shape[1::-1] for c, im in images0.items()}, colouring="none", **options)
+    scores = []
+    for (masks, _), i in zip(frames[warmup:], indices[warmup:]):
+        idx = r.carve(masks)
+        truth = true_occupancy(bodies[i], r.grid.origin, voxel_size, r.grid.dims)
+        scores.append(score_frame(i, idx, truth, r.grid.dims, voxel_size))
+    return summarise_scores(scores)
+
+
+def run(recording, frames: int = 60, voxel_sizes=(0.02, 0.03, 0.04, 0.05), methods=("flat", "hierarchical"),
+        colourings=("none", "visibility"), warmup: int = 10, tolerance: int = 1, min_top: float = 0.25,
+        verbose=True) -> dict:
+    """The benchmark table (rows) and the accuracy per voxel size; each voxel size is
+    fed masks at the scale matched to it (:func:`app.segmentation.matched_scale`), as
+    the pipeline does."""
+    from app.reconstruction.bench import bench_reconstruction
+    from app.recording import Recording
+    from app.segmentation import matched_scale
+
+    calib = Recording(recording).calibration
+    by_scale: dict[int, tuple] = {}
+    rows, accuracy = [], {}
+    for vs in voxel_sizes:
+        scale = matched_scale(calib, vs)
+        if scale not in by_scale:
+            by_scale[scale] = segment_frames(recording, frames, scale)
+        _, segmented, seg_ms, indices = by_scale[scale]
+        timed = segmented[warmup:]   # the background models settle on the first frames
+        seg = seg_ms[warmup:]
+        for row in bench_reconstruction(calib, timed, (vs,), methods, colourings, warmup=2, verbose=False,
+                                        tolerance=tolerance, min_top=min_top):
+            per_frame = np.asarray(row.pop("total_per_frame"))
+            total = per_frame + seg[:len(per_frame)]
+            row["mask_scale"] = scale
+            row["segmentation_p50"] = float(np.percentile(seg, 50))
+            row["segmentation_p95"] = float(np.percentile(seg, 95))
+            row["frame_p50"] = float(np.percentile(total, 50))
+            row["frame_p95"] = float(np.percentile(total, 95))
+            rows.append(row)
+            if verbose:
+                print(format_row(row), flush=True)
+        accuracy[f"{vs:g}"] = _accuracy(recording, calib, segmented, indices, vs, warmup, tolerance=tolerance,
+                                        min_top=min_top)
+    return {"recording": str(recording), "cameras": len(calib.cameras), "frames": frames - warmup,
+            "tolerance": tolerance, "min_top": min_top, "rows": rows, "accuracy": accuracy}
+
+
+HEADER = (f"{'voxel':>5} {'mask':>7} {'method':<12} {'colour':<10} {'occupied':>8} {'seg p50/p95':>13} "
+          f"{'recon p50/p95':>14} {'frame p50/p95':>14} {'budget':>7}")
+
+
+def format_row(r: dict) -> str:
+    budget = BUDGET_MS.get(round(r["voxel_size"], 3))
+    verdict = "" if budget is None or r["colouring"] == "none" else \
+        ("ok" if r["frame_p50"] <= budget else "OVER") + f" {budget:.0f}"
+    mask = f"1/{r['mask_scale']}"
+    return (f"{r['voxel_size'] * 100:4.0f}cm {mask:>7} {r['method']:<12} {r['colouring']:<10} {r['occupied']:8d} "
+            f"{r['segmentation_p50']:6.1f}/{r['segmentation_p95']:5.1f} {r['total_p50']:6.1f}/{r['total_p95']:6.1f} "
+            f"{r['frame_p50']:6.1f}/{r['frame_p95']:6.1f} {verdict:>7}")
+
+
+def format_table(result: dict) -> str:
+    lines = [f"{result['frames']} frames of {result['cameras']} cameras, ms per frame on one core "
+             f"(segmentation of all cameras + reconstruction), k = {result['tolerance']}, "
+             f"floor blobs under {result['min_top']} m dropped", HEADER]
+    lines += [format_row(r) for r in result["rows"]]
+    lines.append(f"{'voxel':>5} {'recall':>7} {'min':>6} {'precision':>9} {'spurious':>9} {'ghost':>7} "
+                 f"{'shadow blob>20':>15} {'largest':>8}")
+    for vs, a in result["accuracy"].items():
+        if a:
+            lines.append(f"{float(vs) * 100:4.0f}cm {a['recall']:7.3f} {a['recall_min']:6.3f} {a['precision']:9.3f} "
+                         f"{a['spurious_mean']:9.1f} {a['ghost_mean']:7.0f} {100 * a['frames_with_floor_blob_over_20']:14.1f}% "
+                         f"{a['floor_blob_max']:8d}")
+    return "\n".join(lines)
