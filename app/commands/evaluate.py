@@ -55,7 +55,7 @@ def main(args) -> int:
         s = rec["summary"]
         print(f"reconstruction at {100 * (s['voxel_size'] or 0):.0f} cm over {s['frames']} frames: "
               f"recall {s['recall']}, precision {s['precision']}, spurious voxels {s['spurious_mean']} per frame, "
-              f"floor blobs > 20 voxels in {100 * s['frames_with_floor_blob_over_20']:.1f}% of frames "
+              f"floor shadow blobs > 20 voxels in {100 * s['frames_with_floor_blob_over_20']:.1f}% of frames "
               f"(largest {s['floor_blob_max']})")
     if not report:
         raise InputError(f"{results}: holds nothing this version can score (voxels.bin: run with "
