@@ -287,8 +287,9 @@ class Worker:
                 t0 = time.perf_counter()
                 self.handle(key, msg)
                 self.ledger.processed(time.perf_counter() - t0)
-                if self._ack is not None:
-                    self._ack.put(Ack(frame=msg.frame, stamp=msg.stamp, worker=self.name))
+                if self._ack is not None and self.ledger.newest_out > self._acked:
+                    self._acked = self.ledger.newest_out  # the newest frame this stage has put out
+                    self._ack.put(Ack(frame=self._acked, stamp=msg.stamp, worker=self.name))
             elif self._ended():
                 break
             self._maybe_stats()
@@ -318,7 +319,7 @@ class Worker:
             if "stats" in self.CONSUMES:
                 self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
             # an unpaced source sends frames as fast as the stages acknowledge them
-            self._ack = None
+            self._ack, self._acked = None, -1
             if not self.layout.run.pace and self.ORDER and self.PRODUCES:
                 self._ack = Publisher(self.session, self.keys.ack(self.name), droppable=False)
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))

@@ -20,7 +20,7 @@ from app.messages import Mask, Voxels
 from app.segmentation import working_size
 from workers.base import Worker
 
-MAX_BACKLOG = 2   # frames ready at once beyond which the stage is behind and skips to the newest
+MAX_BACKLOG = 3   # frames ready at once beyond which the stage is behind and skips to the newest
 
 
 class Reconstruction(Worker):
@@ -111,20 +111,26 @@ class Reconstruction(Worker):
         return {n for n, t in self.last_seen.items() if now - t <= timeout}
 
     def _decide(self, now: float, final: bool = False) -> None:
-        """Reconstruct the frames that are complete or waited long enough, oldest first;
-        when more than ``MAX_BACKLOG`` are ready the stage is behind: only the newest is
-        reconstructed and the older ones are dropped (counted by the ledger)."""
+        """Reconstruct the frames that are complete or waited long enough, and the older
+        ones still pending, oldest first; when more than ``MAX_BACKLOG`` are ready the
+        stage is behind: only the newest is reconstructed and the older ones are dropped
+        (counted by the ledger)."""
         if not self.pending:
             return
         live = self._live_cameras(now)
         wait = self.params["wait_ms"] / 1e3
-        ready = sorted(f for f, e in self.pending.items()
-                       if final or set(e["masks"]) >= live or now - e["first"] >= wait)
+        complete = [f for f, e in self.pending.items()
+                    if final or set(e["masks"]) >= live or now - e["first"] >= wait]
+        if not complete:
+            return
+        # frames older than a ready one will not get more masks in time: take them too,
+        # in order (a missing view only lowers N_visible)
+        ready = sorted(f for f in self.pending if f <= max(complete))
         if len(ready) > MAX_BACKLOG and not final:
+            for f in ready[:-1]:
+                del self.pending[f]   # behind: only the newest (the others count as dropped)
             ready = ready[-1:]
         for frame in ready:
-            for f in [f for f in self.pending if f < frame]:
-                del self.pending[f]   # never reconstruct out of order
             self._reconstruct(frame, self.pending.pop(frame)["masks"])
 
     def tick(self) -> None:
