@@ -26,13 +26,13 @@ body.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from app.errors import InputError
+from app.files import read_jsonl
 from app.simulation.geometry import CONE, ELLIPSOID, PRIM_WIDTH, inside_primitive, primitive_bounds
 
 __all__ = ["body_record", "load_bodies", "true_occupancy", "record_primitives", "OccupancyWriter",
@@ -64,15 +64,7 @@ def load_bodies(recording) -> list[dict]:
         path = path / "bodies.jsonl"
     if not path.is_file():
         raise InputError(f"{path}: file not found (record it with smartroom simulate)")
-    records = []
-    with open(path, encoding="utf-8") as fh:
-        for n, line in enumerate(fh, 1):
-            if line.strip():
-                try:
-                    records.append(json.loads(line))
-                except json.JSONDecodeError:
-                    raise InputError(f"{path.name}: line {n} is not valid JSON") from None
-    return records
+    return read_jsonl(path)
 
 
 def record_primitives(record: dict, people=None):
