@@ -90,8 +90,12 @@ class PipelineView:
         return min(procs, key=lambda r: (r.fps_out, -r.order)) if procs else None
 
     def rtf(self, rows=None) -> float | None:
+        """None while no frame has gone through yet (start-up: "waiting")."""
+        rows = rows if rows is not None else self.rows()
         last = self.limiting(rows)
         if last is None or not self.recording_fps:
+            return None
+        if not any(r.fps_out > 0 or r.final for r in rows if r.processing):
             return None
         return last.fps_out / self.recording_fps
 
@@ -113,7 +117,7 @@ class PipelineView:
         rtf = self.rtf(rows)
         neck = self.bottleneck(rows)
         head = [f"rtf={rtf:.2f}" if rtf is not None else "rtf=-", f"verdict={self.verdict(rtf).split(' ')[0]}"]
-        if neck is not None:
+        if neck is not None and rtf is not None:
             head.append(f"bottleneck={neck.name} busy={neck.busy:.2f}")
         parts = [" ".join(head)]
         for r in self.shown(rows):
@@ -130,7 +134,7 @@ class PipelineView:
         head = f"smartroom monitor | {fps} | RTF {rtf:.2f} (target 1.00): {self.verdict(rtf).upper()}" \
             if rtf is not None else f"smartroom monitor | {fps} | waiting for stages"
         lines = [head]
-        if neck is not None:
+        if neck is not None and rtf is not None:
             lines.append(f"bottleneck: {neck.name} (busy {100 * neck.busy:.0f}%, {neck.dropped} frames dropped)")
         cols = f"{'stage':<16}{'fps in':>8}{'fps out':>9}{'lat p50':>9}{'lat p95':>9}{'drops':>7}{'cpu %':>7}{'busy':>6}"
         lines += ["", cols, "-" * len(cols)]

@@ -233,5 +233,7 @@ class Reconstructor:
         for img in images.values():
             img.flags.writeable = False
         self.reconstruct(masks, images)
+        if self.floor is not None:  # the tiny blob may leave no voxel for the floor filter
+            self.floor(np.zeros((2, 3), dtype=np.uint16))
         lay = self.layout
         fill_cells(self._root_cells[:0], 0, lay.brick_key, lay.local_key, self._keys, 0)   # may not have run
