@@ -77,3 +77,13 @@ workers:
     assert upstream_of(layout, layout.worker("seg_all")) == ["grab0", "grab1"]
     assert sorted(upstream_of(layout, layout.worker("rec"))) == ["grab0", "grab1", "seg0", "seg_all"]
     assert upstream_of(layout, layout.worker("grab0")) == []
+
+
+def test_every_shipped_layout_is_valid():
+    from pathlib import Path
+
+    layouts = sorted(Path("deploy/layouts").glob("*.yaml"))
+    assert len(layouts) >= 3
+    for path in layouts:
+        layout = load_layout(path)
+        assert layout.workers and any(w.kind == "grabber" for w in layout.workers), path

@@ -165,3 +165,34 @@ def test_live_cameras_and_a_camera_that_stops(tmp_path):
     seg = s["workers"]["segmentation"]
     assert seg["items_in"] < 2 * 40  # cam1 missed most frames
     assert s["stages"]["reconstruction"]["frames_out"] >= 30  # reconstructed without cam1
+
+
+def test_worker_on_another_host_joins_the_run(long_recording, tmp_path):
+    """A layout whose segmentation runs elsewhere: the launcher does not start it, and a
+    `smartroom worker` started apart (as on the camera PC) joins the run over zenoh."""
+    layout = yaml.safe_load(open("deploy/layouts/local.yaml"))
+    for w in layout["workers"]:
+        if w["name"] == "segmentation":
+            w["host"] = "camera-pc"
+    path = tmp_path / "two.yaml"
+    path.write_text(yaml.safe_dump(layout))
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", long_recording, "--frames", 50, "--headless", "--layout", path,
+                           "--out", out)
+    for _ in range(200):
+        if (out / "layout.yaml").is_file():
+            break
+        time.sleep(0.05)
+    remote = start_smartroom("worker", "segmentation", "--layout", out / "layout.yaml")
+    try:
+        _, err = proc.communicate(timeout=120)
+        remote.communicate(timeout=30)
+    finally:
+        for p in (proc, remote):
+            if p.poll() is None:
+                p.kill()
+    assert proc.returncode == 0, err
+    assert remote.returncode == 0
+    s = _stats(out)
+    assert s["stages"]["segmentation"]["frames_out"] >= 48
+    assert s["stages"]["reconstruction"]["frames_out"] >= 48
