@@ -58,6 +58,9 @@ class Segmentation(Worker):
         self.recording = Recording(run.recording) if run.recording else None
         calib = self.recording.calibration if self.recording else (load_calibration(run.calibration)
                                                                     if run.calibration else None)
+        for cam in self.cameras() or []:
+            if calib is not None:
+                calib.camera(cam)  # an unknown camera is a one-line error
         self.scale, self.colour_scale = scales(self.spec, self.layout, calib)
         self.seg_params = SegmentationParams.from_params({**self.params, "scale": self.scale})
         self.segmenters: dict[str, CameraSegmenter] = {}
