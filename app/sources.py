@@ -158,6 +158,11 @@ class LiveSource:
                 index += 1
 
     def close(self):
+        """Stop the camera threads and release the cameras (before the interpreter
+        exits: a capture released during shutdown aborts the process)."""
         self._closed.set()
         for t in self.threads.values():
             t.stopped.set()
+        for t in self.threads.values():
+            if t.is_alive():
+                t.join(timeout=5.0)
