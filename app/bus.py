@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from app.messages import EndOfStream, Message, MessageError, decode
+from app.messages import Message, MessageError, decode
 
 __all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "MessageError"]
 
@@ -125,7 +125,3 @@ class Publisher:
 def decode_sample(sample) -> Message:
     """Decode a zenoh sample's payload (raises :class:`MessageError`)."""
     return decode(sample.payload.to_bytes())
-
-
-def is_end(msg: Message) -> bool:
-    return isinstance(msg, EndOfStream)

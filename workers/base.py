@@ -160,9 +160,6 @@ class Worker:
     def on_stats(self, msg: Stats) -> None:
         """Stats of any worker (only for kinds that consume ``stats``)."""
 
-    def on_end(self, msg: EndOfStream) -> None:
-        """An upstream worker's end of stream (after it is recorded)."""
-
     def tick(self) -> None:
         """Called on every turn of the loop (at least every 50 ms when idle)."""
 
@@ -225,7 +222,6 @@ class Worker:
             if msg.worker in self._wait_for and msg.worker not in self._upstream_done:
                 if self._source_eos is None or msg.frames > self._source_eos.frames:
                     self._source_eos = msg
-                self.on_end(msg)
                 self._upstream_done[msg.worker] = msg
                 self.inbox.wake()
         elif isinstance(msg, Stats):
