@@ -90,11 +90,11 @@ class Keys:
     def alive(self, worker: str = "*") -> str:
         return f"{self.root}/alive/{worker}"
 
-    def stage(self, stage: str) -> str:
-        """The key expression of everything a stage publishes (``frame`` -> all cameras)."""
+    def stage(self, stage: str, camera: str = "*") -> str:
+        """The key expression of what a stage publishes (per camera for frames and masks)."""
         per_camera = {"frame": self.frame, "mask": self.mask}
         if stage in per_camera:
-            return per_camera[stage]()
+            return per_camera[stage](camera)
         return f"{self.root}/{stage}"
 
     @staticmethod

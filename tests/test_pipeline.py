@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from app.bus import BusConfig, Keys, open_session
+from app.messages import Stats
 from tests.conftest import smartroom, start_smartroom
 from tests.synthetic import write_tiny_recording
 
@@ -92,7 +93,8 @@ def test_malformed_messages_are_counted_and_skipped(long_recording, tmp_path):
                 break
             time.sleep(0.05)
         time.sleep(0.5)
-        for payload in (b"", b"garbage", b"SRM\x01" + bytes(40), b"\xff" * 1000):
+        wrong_type = Stats(frame=5, worker="intruder").to_bytes()  # a valid message on the wrong key
+        for payload in (b"", b"garbage", b"SRM\x01" + bytes(40), b"\xff" * 1000, wrong_type):
             session.put(keys.frame("cam0"), payload)
             session.put(keys.mask("cam1"), payload)
             time.sleep(0.05)
@@ -103,7 +105,7 @@ def test_malformed_messages_are_counted_and_skipped(long_recording, tmp_path):
     assert proc.returncode == 0, err
     s = _stats(out)
     for stage in ("segmentation", "reconstruction"):
-        assert s["workers"][stage]["bad_messages"] >= 3, stage
+        assert s["workers"][stage]["bad_messages"] >= 4, stage
         assert s["stages"][stage]["frames_out"] >= 95, stage  # the stream went on
 
 

@@ -96,6 +96,7 @@ class Worker:
     DISPLAY: ClassVar[bool] = False      # an interactive view: not started with --headless
     DEFAULTS: ClassVar[dict] = {}
     INBOX_DEPTH: ClassVar[int] = 1       # latest-frame-wins by default
+    ACCEPTS: ClassVar[tuple] = ()        # message types handle() takes (others are bad messages)
     DROP_OUTPUT: ClassVar[bool] = True   # data outputs use congestion control DROP
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
@@ -135,7 +136,7 @@ class Worker:
             if stage == "stats":
                 continue  # stats are delivered through on_stats
             if stage in self.PER_CAMERA and self.cameras() is not None:
-                keys += [self.keys.stage(stage).rsplit("/", 1)[0] + f"/{c}" for c in self.cameras()]
+                keys += [self.keys.stage(stage, c) for c in self.cameras()]
             else:
                 keys.append(self.keys.stage(stage))
         return keys
@@ -278,6 +279,10 @@ class Worker:
                 except MessageError as exc:
                     self.ledger.bad_message()
                     self.log.warning("skipping malformed message on %s: %s", key, exc)
+                    continue
+                if self.ACCEPTS and not isinstance(msg, self.ACCEPTS):
+                    self.ledger.bad_message()
+                    self.log.warning("skipping a %s on %s", type(msg).__name__, key)
                     continue
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()

@@ -28,6 +28,7 @@ class Reconstruction(Worker):
     ORDER = 2
     CONSUMES = ("mask",)
     PRODUCES = ("voxels",)
+    ACCEPTS = (Mask,)
     INBOX_DEPTH = 4   # per camera: a few frames to assemble complete sets
     DEFAULTS = {
         "voxel_size": 0.04,          # metres (0.02 .. 0.15)
@@ -95,7 +96,7 @@ class Reconstruction(Worker):
 
     # -- assembly ---------------------------------------------------------------------
     def handle(self, key: str, msg: Mask) -> None:
-        if not isinstance(msg, Mask) or msg.camera not in self.last_seen:
+        if msg.camera not in self.last_seen:
             self.log.warning("ignoring a mask of unknown camera %r", getattr(msg, "camera", None))
             return
         now = time.monotonic()

@@ -57,6 +57,7 @@ class _JsonLines:
 class Recorder(Worker):
     KIND = "recorder"
     CONSUMES = ("tracks", "poses", "stats")
+    ACCEPTS = (Tracks, Poses, Voxels)
     INBOX_DEPTH = 1000   # keep results rather than drop them (bounded all the same)
     DEFAULTS = {
         "voxels": False,   # also keep every frame's voxels in voxels.bin

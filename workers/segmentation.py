@@ -36,6 +36,7 @@ class Segmentation(Worker):
     ORDER = 1
     CONSUMES = ("frame",)
     PRODUCES = ("mask",)
+    ACCEPTS = (Frame,)
     DEFAULTS = {
         "cameras": "all",
         "scale": 0,                  # masks at 1/scale of the image size; 0: matched to the voxel size

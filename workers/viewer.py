@@ -34,6 +34,7 @@ BEHIND_COLOUR = (1.0, 0.6, 0.25)
 class Viewer(Worker):
     KIND = "viewer"
     CONSUMES = ("voxels", "tracks", "poses", "stats")
+    ACCEPTS = (Voxels, Tracks, Poses)
     DISPLAY = True
     DEFAULTS = {
         "bind": "127.0.0.1",          # address the page listens on (0.0.0.0: every interface)
