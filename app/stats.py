@@ -83,6 +83,9 @@ class StageLedger:
         self._events = deque()      # (time, kind, latency_ms) for the rate window
         self._busy = deque()        # (end time, seconds busy)
         self._cpu0 = (time.monotonic(), time.process_time())
+        self._cpu_start = self._cpu0
+        self.process_total = 0.0
+        self._proc_frame = None
         self.started = clock()
 
     # -- feeding ------------------------------------------------------------------
@@ -111,9 +114,16 @@ class StageLedger:
             self._events.append((now, "out", lat))
             self.newest_out = max(self.newest_out, frame)
 
-    def processed(self, seconds: float) -> None:
-        self.process_ms.append(seconds * 1e3)
+    def processed(self, seconds: float, frame: int | None = None) -> None:
+        """Time spent handling one item; the items of one frame (its cameras) add up
+        to that frame's processing time."""
         self._busy.append((self.clock(), seconds))
+        self.process_total += seconds
+        if frame is not None and frame == self._proc_frame and self.process_ms:
+            self.process_ms[-1] += seconds * 1e3
+        else:
+            self.process_ms.append(seconds * 1e3)
+            self._proc_frame = frame
 
     def dropped_item(self, n: int = 1) -> None:
         self.items_dropped += n
@@ -142,7 +152,8 @@ class StageLedger:
         else:
             dropped = self.seen.count_below(self.newest_out) - self.done.count_below(self.newest_out)
         mono, cpu = time.monotonic(), time.process_time()
-        cpu_percent = 100.0 * (cpu - self._cpu0[1]) / max(1e-6, mono - self._cpu0[0])
+        since = self._cpu_start if final else self._cpu0   # the whole run at the end
+        cpu_percent = 100.0 * (cpu - since[1]) / max(1e-6, mono - since[0])
         self._cpu0 = (mono, cpu)
         active = None
         if self.first_stamp is not None and self.last_emit is not None:
@@ -164,7 +175,7 @@ class StageLedger:
             "latency_window_ms": percentiles(win_lat),
             "process_ms": percentiles(self.process_ms),
             "busy": round(min(1.0, sum(b[1] for b in self._busy) / span), 3),
-            "busy_total": round(min(1.0, sum(self.process_ms) / 1e3 / max(1e-6, now - (self.first_in or now))), 3)
+            "busy_total": round(min(1.0, self.process_total / max(1e-6, now - (self.first_in or now))), 3)
             if self.first_in is not None else 0.0,
             "cpu_percent": round(cpu_percent, 1),
             "last_frame": self.last_frame,

@@ -287,7 +287,7 @@ class Worker:
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()
                 self.handle(key, msg)
-                self.ledger.processed(time.perf_counter() - t0)
+                self.ledger.processed(time.perf_counter() - t0, msg.frame)
                 if self._ack is not None and self.ledger.newest_out > self._acked:
                     self._acked = self.ledger.newest_out  # the newest frame this stage has put out
                     self._ack.put(Ack(frame=self._acked, stamp=msg.stamp, worker=self.name))
