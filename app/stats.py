@@ -10,12 +10,14 @@ Definitions (CONTRACT §2, extended):
   run, only frames older than the newest output count);
 - ``frames_missing``: produced by the source but never received here (known at the
   end of the stream), so ``frames_in + frames_missing`` is the source's frame count;
-- latency: wall-clock time from the frame's capture to the stage's output.
+- latency: wall-clock time from the frame's capture to the stage's output (over the
+  last ``RECENT`` outputs while running, over all of them in the final figures).
 """
 from __future__ import annotations
 
 import os
 import time
+from array import array
 from collections import deque
 
 import numpy as np
@@ -23,6 +25,7 @@ import numpy as np
 __all__ = ["StageLedger", "summarise", "percentiles"]
 
 WINDOW_S = 2.0
+RECENT = 5000   # outputs (~3 min at 25 fps) behind the running latency percentiles
 
 
 def percentiles(values_ms) -> dict:
@@ -73,8 +76,8 @@ class StageLedger:
         self.items_out = 0
         self.items_dropped = 0
         self.bad_messages = 0
-        self.latency_ms: list[float] = []
-        self.process_ms: list[float] = []
+        self.latency_ms = array("d")   # every output's latency (compact: hours of frames)
+        self.process_ms = array("d")
         self.first_stamp = None
         self.first_in = None
         self.last_emit = None
@@ -138,6 +141,13 @@ class StageLedger:
         while self._busy and self._busy[0][0] < now - WINDOW_S:
             self._busy.popleft()
 
+    @staticmethod
+    def _span(values: array, final: bool) -> np.ndarray:
+        """All values at the end; the latest ``RECENT`` during a run, so the stats sent
+        every second cost the same after hours as after minutes."""
+        a = np.frombuffer(values, dtype=np.float64) if len(values) else np.zeros(0)
+        return a if final else a[-RECENT:]
+
     def figures(self, final: bool = False, expected: int | None = None, first: int = 0) -> dict:
         """The stage's figures now; ``expected`` frames from ``first`` (the source's count)
         turns never-received frames into ``frames_missing``."""
@@ -171,9 +181,9 @@ class StageLedger:
             "fps_out": round(len(win_lat) / span, 3),
             # N frames span N-1 frame intervals from the first capture to the last output
             "fps": round((frames_out - 1) / active, 3) if active and frames_out > 1 else 0.0,
-            "latency_ms": percentiles(self.latency_ms),
+            "latency_ms": percentiles(self._span(self.latency_ms, final)),
             "latency_window_ms": percentiles(win_lat),
-            "process_ms": percentiles(self.process_ms),
+            "process_ms": percentiles(self._span(self.process_ms, final)),
             "busy": round(min(1.0, sum(b[1] for b in self._busy) / span), 3),
             "busy_total": round(min(1.0, self.process_total / max(1e-6, now - (self.first_in or now))), 3)
             if self.first_in is not None else 0.0,
