@@ -36,6 +36,32 @@ def evaluate_reconstruction(recording: Path, voxels_path: Path, near: float = 0.
     return {"summary": summary, "frames": [s.as_dict() for s in scores]}
 
 
+def evaluate_tracking(recording: Path, tracks_path: Path) -> dict:
+    """CLEAR MOT (MOTP, MOTA, error ratios; Eq. 4.22-4.23) and IDF1 of ``tracks.jsonl``."""
+    from app.errors import InputError
+    from app.evaluation.tracking import result_frames, score_tracking, truth_frames
+    from app.files import read_jsonl
+    from app.recording import Recording
+
+    truth = Recording(recording).groundtruth()
+    if truth is None:
+        raise InputError(f"{recording}: has no groundtruth.jsonl to score tracks against")
+    try:
+        results = result_frames(read_jsonl(tracks_path))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{tracks_path}: not valid tracks ({exc})") from None
+    truth = truth_frames(truth)
+    # the frames the run covered: every ground-truth frame up to its last result line
+    last = max(results) if results else -1
+    s = score_tracking(truth, results, frames=[f for f in sorted(truth) if f <= last])
+    out = s.summary()
+    print(f"tracking over {out['frames']} frames: MOTP {out['motp_mm']} mm, MOTA {out['mota']}, "
+          f"IDF1 {out['idf1']}, misses {out['miss_ratio']}, false positives {out['false_positive_ratio']}, "
+          f"mismatches {out['mismatch_ratio']} ({out['mismatches']}), ids {out['track_ids']} for "
+          f"{out['true_ids']} people")
+    return out
+
+
 def main(args) -> int:
     from app.errors import InputError
     from app.files import write_json
@@ -57,6 +83,8 @@ def main(args) -> int:
               f"recall {s['recall']}, precision {s['precision']}, spurious voxels {s['spurious_mean']} per frame, "
               f"floor shadow blobs > 20 voxels in {100 * s['frames_with_floor_blob_over_20']:.1f}% of frames "
               f"(largest {s['floor_blob_max']})")
+    if (results / "tracks.jsonl").is_file():
+        report["tracking"] = evaluate_tracking(recording, results / "tracks.jsonl")
     if not report:
         raise InputError(f"{results}: holds nothing this version can score (voxels.bin: run with "
                          "--set recorder.voxels=true)")
