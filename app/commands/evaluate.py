@@ -2,7 +2,8 @@
 
 Scores what the results hold: the reconstruction (``voxels.bin``, written when the
 recorder runs with ``voxels: true``) against the true body volume of a simulated
-recording (``bodies.jsonl``): recall, precision, spurious voxels and floor shadows.
+recording (``bodies.jsonl``): recall, precision, spurious voxels, floor shadows, the
+hull's volume over the true body volume and whether a person is in pieces.
 Writes ``eval.json`` into the results folder and prints a summary.
 """
 from __future__ import annotations
@@ -29,8 +30,9 @@ def evaluate_reconstruction(recording: Path, voxels_path: Path, near: float = 0.
         record = bodies.get(msg.frame)
         if record is None:
             continue
-        truth = true_occupancy(record, msg.origin, msg.voxel_size, msg.dims)
-        scores.append(score_frame(msg.frame, msg.indices, truth, msg.dims, msg.voxel_size, near=near))
+        truth, person = true_occupancy(record, msg.origin, msg.voxel_size, msg.dims, with_person=True)
+        scores.append(score_frame(msg.frame, msg.indices, truth, msg.dims, msg.voxel_size, near=near,
+                                  truth_person=person))
     summary = summarise_scores(scores)
     summary["voxel_size"] = msg.voxel_size if scores else None
     return {"summary": summary, "frames": [s.as_dict() for s in scores]}
@@ -83,6 +85,10 @@ def main(args) -> int:
               f"recall {s['recall']}, precision {s['precision']}, spurious voxels {s['spurious_mean']} per frame, "
               f"floor shadow blobs > 20 voxels in {100 * s['frames_with_floor_blob_over_20']:.1f}% of frames "
               f"(largest {s['floor_blob_max']})")
+        if s.get("volume_ratio") is not None:
+            print(f"hull: {s['volume_ratio']}x the true body volume ({s['volume_ratio_near']}x within {args.near} m "
+                  f"of a body); largest component near each person holds at least {s['largest_share_min']} of its "
+                  f"voxels; person in pieces (< 0.9) in {100 * s['frames_in_pieces']:.1f}% of frames")
     if (results / "tracks.jsonl").is_file():
         report["tracking"] = evaluate_tracking(recording, results / "tracks.jsonl")
     if not report:

@@ -44,17 +44,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["classify_cells", "carve_cells", "fill_cells", "mask_votes", "MAX_CAMERAS"]
+__all__ = ["classify_cells", "carve_cells", "fill_cells", "mask_votes", "occluded_votes", "dissent_cells",
+           "carve_cells_occluded", "OCC_VOTE",
+           "MAX_CAMERAS"]
 
 
 @njit(cache=True, nogil=True)
-def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, min_views, expand, out_edge, out_full):
+def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, min_views, expand, out_edge, out_full,
+                   sat_fg=None):
     """Classify ``cells`` (ids at one box level) from the summed-area tables ``sat`` of
     the cameras ``cams`` (those with a mask this frame).
 
     ``boxes`` (n_cells, C, 5) int16: u0 v0 u1 v1 status per cell and camera. Edge cells
     (or, with ``expand``, their 8 children) go to ``out_edge``, foreground cells to
     ``out_full``; background cells are dropped. Returns ``(n_edge, n_full)``.
+
+    With occluder masks (:mod:`.occlusion`) ``sat`` counts the pixels that *may* vote
+    foreground (foreground, or background behind a learnt occluder, which abstains) and
+    ``sat_fg`` the foreground pixels alone: a camera surely says foreground only when
+    its whole box is foreground in ``sat_fg``.
     """
     n_edge = 0
     n_full = 0
@@ -82,7 +90,15 @@ def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, m
                 may_fg += 1
                 if count == (u1 - u0) * (v1 - v0):
                     if status == 2:
-                        sure_fg += 1
+                        if sat_fg is None:
+                            sure_fg += 1
+                        elif (sat_fg[base + v1 * st + u1] - sat_fg[base + v0 * st + u1]
+                              - sat_fg[base + v1 * st + u0] + sat_fg[base + v0 * st + u0]) == count:
+                            sure_fg += 1
+                        else:
+                            may_bg += 1
+                    elif sat_fg is not None:
+                        may_bg += 1
                 else:
                     may_bg += 1
             else:
@@ -120,6 +136,109 @@ def mask_votes(mask, out):
     """Votes (foreground 1, background 32) of a 0/1 mask, both flat arrays."""
     for q in range(mask.shape[0]):
         out[q] = FG_VOTE if mask[q] else BG_VOTE
+
+
+#: Vote of a background pixel behind a learnt occluder (:mod:`.occlusion`): the camera
+#: abstains on voxels at or past the occluder's depth and votes background on nearer ones.
+OCC_VOTE = 2
+
+
+@njit(cache=True, nogil=True)
+def occluded_votes(mask, occluded, out):
+    """Votes of a 0/1 mask with learnt occluders (``occluded`` 1): foreground 1,
+    background 32, background behind an occluder :data:`OCC_VOTE`."""
+    for q in range(mask.shape[0]):
+        if mask[q]:
+            out[q] = FG_VOTE
+        elif occluded[q]:
+            out[q] = OCC_VOTE
+        else:
+            out[q] = BG_VOTE
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _vote(v, c, i, j, k, q, depth_coef, occ_depth):
+    """A camera's vote on voxel (i, j, k); behind an occluder it abstains (0) when the
+    voxel lies at or past the occluder's depth, and says background in front of it."""
+    if v != OCC_VOTE:
+        return v
+    z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
+    return 0 if z >= occ_depth[q] else BG_VOTE
+
+
+@njit(cache=True, nogil=True)
+def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolerance, min_views, brick_key, local_key,
+                         shift_i, shift_j, out, n):
+    """:func:`carve_cells` with learnt occluders: a camera abstains on a voxel behind
+    one of its occluders (its pixel votes :data:`OCC_VOTE` and the voxel's depth in
+    that camera, ``depth_coef . (i, j, k, 1)``, is at least ``occ_depth`` there)."""
+    n_cams = lut.shape[1]
+    bshift = np.int64(0)
+    while (np.int64(1) << bshift) < local_key.shape[0]:
+        bshift += 1
+    lmask = local_key.shape[0] - 1
+    mask_j = (np.int64(1) << (shift_i - shift_j)) - 1
+    mask_k = (np.int64(1) << shift_j) - 1
+    size = np.int64(1) << shift
+    for ci in range(cells.shape[0]):
+        start = np.int64(cells[ci]) << shift
+        base_key = brick_key[start >> bshift]
+        for p in range(start, start + size):
+            key = base_key + local_key[p & lmask]
+            i = key >> shift_i
+            j = (key >> shift_j) & mask_j
+            k = key & mask_k
+            total = 0
+            for c in range(n_cams):
+                q = lut[p, c]
+                total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
+            if (total >> VOTE_SHIFT) <= tolerance and (total & MAX_CAMERAS) >= min_views:
+                out[n] = key
+                n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent, support, brick_key, local_key,
+                  shift_i, shift_j, flag, flag_depth):
+    """Evidence for occluders (Guan et al. 2006): for every voxel of ``cells`` that
+    exactly ``dissent`` cameras call background (``votes`` with the occluders learnt
+    so far, as :func:`carve_cells_occluded` reads them) while at least ``support`` call
+    it foreground, set ``flag`` (the concatenated masks' pixels, as ``votes``) at the
+    pixels where the voxel is background in the masks (``raw`` votes: the dissenting
+    cameras and those abstaining behind an occluder) and keep there the least depth of
+    such a voxel (``flag_depth``). Returns the number of such voxels."""
+    n_cams = lut.shape[1]
+    bshift = np.int64(0)
+    while (np.int64(1) << bshift) < local_key.shape[0]:
+        bshift += 1
+    lmask = local_key.shape[0] - 1
+    mask_j = (np.int64(1) << (shift_i - shift_j)) - 1
+    mask_k = (np.int64(1) << shift_j) - 1
+    size = np.int64(1) << shift
+    count = 0
+    for ci in range(cells.shape[0]):
+        start = np.int64(cells[ci]) << shift
+        base_key = brick_key[start >> bshift]
+        for p in range(start, start + size):
+            key = base_key + local_key[p & lmask]
+            i = key >> shift_i
+            j = (key >> shift_j) & mask_j
+            k = key & mask_k
+            total = 0
+            for c in range(n_cams):
+                q = lut[p, c]
+                total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
+            if (total >> VOTE_SHIFT) == dissent and (total & MAX_CAMERAS) >= support:
+                count += 1
+                for c in range(n_cams):
+                    q = lut[p, c]
+                    if raw[q] == BG_VOTE:
+                        flag[q] = 1
+                        z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
+                        if z < flag_depth[q]:
+                            flag_depth[q] = z
+    return count
 
 
 @njit(cache=True, nogil=True)

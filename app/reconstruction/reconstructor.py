@@ -16,15 +16,18 @@ import numpy as np
 
 from calibration import Calibration
 
-from .carving import MAX_CAMERAS, carve_cells, classify_cells, fill_cells, mask_votes
+from .carving import (MAX_CAMERAS, carve_cells, carve_cells_occluded, classify_cells, dissent_cells, fill_cells,
+                      mask_votes, occluded_votes)
 from .colouring import COLOURINGS, VoxelColourer
 from .floor import FloorBlobFilter
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
+from .occlusion import OccluderModel
 from .projection import ProjectionTable
 
-__all__ = ["Reconstructor", "METHODS"]
+__all__ = ["Reconstructor", "METHODS", "OCCLUSIONS"]
 
 METHODS = ("hierarchical", "flat")
+OCCLUSIONS = ("none", "learnt")
 
 
 class Reconstructor:
@@ -53,17 +56,29 @@ class Reconstructor:
     cache : also keep the projection tables on disk (``$SMARTROOM_CACHE/lut``).
     min_top : drop connected components whose top is lower than this (m): floor shadows
         reconstructed as matter (see :mod:`.floor`); 0, the thesis's behaviour, keeps all.
+    occlusion : ``"none"`` (the thesis: every camera that sees a voxel votes) or
+        ``"learnt"``: occluder masks learnt over the run (:mod:`.occlusion`, Guan et al.
+        2006); a camera abstains behind its occluders, so ``tolerance = 0`` keeps what
+        furniture hides from one camera without the excess of ``tolerance = 1``.
+    occlusion_evidence, occlusion_ratio, occlusion_support, occlusion_margin : the
+        occluder test of :class:`~.occlusion.OccluderModel`.
+    learn_every : learn occluders from every n-th reconstructed frame (0: never, the
+        masks stay as they are).
     """
 
     def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
                  colour_sizes: Mapping | None = None, tolerance: int = 1, min_views: int = 2,
                  method: str = "hierarchical", colouring: str = "visibility", brick: int = 8,
                  box_levels: int = 2, splat: float = 1.0, depth_tolerance: float = 3.0, march: int = 6,
-                 threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0):
+                 threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
+                 occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
+                 occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
             raise ValueError(f"colouring must be one of {', '.join(COLOURINGS)}, got {colouring!r}")
+        if occlusion not in OCCLUSIONS:
+            raise ValueError(f"occlusion must be one of {', '.join(OCCLUSIONS)}, got {occlusion!r}")
         if tolerance < 0 or min_views < 1:
             raise ValueError("tolerance must be >= 0 and min_views >= 1")
         if len(calibration.cameras) > MAX_CAMERAS:
@@ -101,6 +116,20 @@ class Reconstructor:
         t = self.table
         self._votes = np.zeros(t.mask_total + 1, dtype=np.uint8)     # + the 0 sentinel
         self._sat = np.zeros(t.sat_total, dtype=np.int32)
+        self.occluders = None
+        if occlusion == "learnt":
+            self.occluders = OccluderModel(t.mask_total, occlusion_evidence, occlusion_ratio, occlusion_support,
+                                           occlusion_margin)
+            # depth (camera z, m) of voxel (i, j, k) in each mask camera: coef . (i, j, k, 1)
+            g = self.grid
+            self._depth_coef = np.array([[*(c.R[2] * g.voxel_size), float(c.R[2] @ (g.origin + 0.5 * g.voxel_size))
+                                          + float(c.t[2])] for c in self.mask_cameras], dtype=np.float64)
+            self._raw = np.zeros(t.mask_total + 1, dtype=np.uint8)     # votes with no occluder
+            self._fg = np.zeros(t.mask_total, dtype=np.uint8)          # the masks, 0/1
+            self._sat_fg = np.zeros(t.sat_total, dtype=np.int32)
+        self.occlusion = occlusion
+        self.learn_every = int(learn_every)
+        self.frames_carved = 0
         views = t.views_per_brick()
         self._root_cells = np.flatnonzero(views >= self.min_views).astype(np.int32)
         self._all_bricks = np.arange(self.layout.n_bricks, dtype=np.int32)
@@ -132,30 +161,104 @@ class Reconstructor:
     def _upload_masks(self, masks: Mapping) -> np.ndarray:
         """Write the masks as votes into the concatenated buffer (0 for a camera without a
         mask) and, for the hierarchical method, their summed-area tables; returns the
-        indices of the cameras with a mask."""
+        indices of the cameras with a mask. With learnt occluders the votes abstain
+        behind them, the summed-area table counts the pixels that may vote foreground
+        (foreground or occluded) and a second one the foreground alone."""
         t = self.table
+        occ = self.occluders
         cams = []
         for c, name in enumerate(self.names):
             m = masks.get(name)
             w, h = t.mask_sizes[c]
-            votes = self._votes[t.mask_offset[c]: t.mask_offset[c] + w * h].reshape(h, w)
+            o = t.mask_offset[c]
+            votes = self._votes[o: o + w * h].reshape(h, w)
             if m is None:
                 votes[:] = 0
+                if occ is not None:
+                    self._raw[o: o + w * h] = 0
+                    self._fg[o: o + w * h] = 0
                 continue
             if m.shape != (h, w):
                 raise ValueError(f"camera {name}: mask must be {h}x{w}, got {'x'.join(map(str, m.shape))}")
             m01 = np.ascontiguousarray(m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).view(np.uint8))
-            mask_votes(m01.reshape(-1), votes.reshape(-1))
-            if self.method == "hierarchical":
-                sat = self._sat[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
-                cv2.integral(m01, sum=sat, sdepth=cv2.CV_32S)
+            sat = self._sat[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
+            if occ is None:
+                mask_votes(m01.reshape(-1), votes.reshape(-1))
+                if self.method == "hierarchical":
+                    cv2.integral(m01, sum=sat, sdepth=cv2.CV_32S)
+            else:
+                flat = m01.reshape(-1)
+                self._fg[o: o + w * h] = flat
+                mask_votes(flat, self._raw[o: o + w * h])
+                occluded = occ.occluded[o: o + w * h]
+                occluded_votes(flat, occluded, votes.reshape(-1))
+                if self.method == "hierarchical":
+                    cv2.integral(m01 | occluded.reshape(h, w), sum=sat, sdepth=cv2.CV_32S)
+                    sat_fg = self._sat_fg[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
+                    cv2.integral(m01, sum=sat_fg, sdepth=cv2.CV_32S)
             cams.append(c)
         return np.asarray(cams, dtype=np.int64)
 
+    def _learn_occluders(self, cams: np.ndarray) -> None:
+        """One frame's evidence for the occluder masks (:mod:`.occlusion`): the voxels
+        of the hull at ``tolerance + 1`` (the occluders learnt so far abstaining) that
+        exactly ``tolerance + 1`` cameras call background, found coarse-to-fine with the same
+        conservative cell tests as the carving."""
+        occ = self.occluders
+        t, lay = self.table, self.layout
+        L = lay.levels
+        dissent = self.tolerance + 1
+        mv = self.min_views
+        if len(cams) >= max(mv, occ.support):
+            if self.method == "flat":
+                self._dissent(self._all_bricks, 3 * L, dissent)
+            else:
+                cells = self._root_cells
+                last = t.box_levels - 1
+                for lvl in range(t.box_levels):
+                    n_edge, n_full = classify_cells(cells, t.boxes[lvl], cams, self._sat, t.sat_offset, t.sat_stride,
+                                                    dissent, mv, lvl < last, self._edge[lvl], self._full[lvl],
+                                                    self._sat_fg)
+                    if n_full:
+                        self._dissent(self._full[lvl][:n_full], 3 * (L - lvl), dissent)
+                    cells = self._edge[lvl][:n_edge]
+                self._dissent(cells, 3 * (L - last), dissent)
+        occ.add(self._fg)
+
+    def _dissent(self, cells, shift, dissent) -> int:
+        occ, lay = self.occluders, self.layout
+        return dissent_cells(cells, shift, self.table.lut, self._votes, self._raw, self._depth_coef, occ.occ_depth,
+                             dissent, occ.support, lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j,
+                             occ.flag, occ.flag_depth)
+
+    def _carve_voxels(self, cells, shift, k, mv, n, early_exit) -> int:
+        """The exact per-voxel test of ``cells``, with or without occluders."""
+        t, lay = self.table, self.layout
+        if self.occluders is None:
+            return carve_cells(cells, shift, t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, self._keys, n,
+                               early_exit)
+        return carve_cells_occluded(cells, shift, t.lut, self._votes, self._depth_coef, self.occluders.occ_depth, k, mv,
+                                    lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j, self._keys, n)
+
+    def occluder_share(self) -> dict:
+        """``{camera: fraction of its mask's pixels that are learnt occluder pixels}``."""
+        if self.occluders is None:
+            return {}
+        t = self.table
+        return {n: self.occluders.share(int(t.mask_offset[c]), t.mask_sizes[c][0] * t.mask_sizes[c][1])
+                for c, n in enumerate(self.names)}
+
     def carve(self, masks: Mapping) -> np.ndarray:
         """Occupied voxels (N, 3) uint16, sorted by flat id, from ``{camera: mask or None}``."""
-        indices = self._indices(self._carve_keys(self._upload_masks(masks)))
+        cams = self._upload_masks(masks)
+        indices = self._indices(self._carve_keys(cams))
+        self._after_carving(cams)
         return self.floor(indices) if self.floor is not None else indices
+
+    def _after_carving(self, cams) -> None:
+        self.frames_carved += 1
+        if self.occluders is not None and self.learn_every and self.frames_carved % self.learn_every == 0:
+            self._learn_occluders(cams)
 
     def _carve_keys(self, cams: np.ndarray) -> np.ndarray:
         """Sort keys of the occupied voxels (unsorted), from the uploaded masks."""
@@ -166,20 +269,19 @@ class Reconstructor:
         if len(cams) < mv:
             return keys[:0]
         if self.method == "flat":
-            n = carve_cells(self._all_bricks, 3 * L, t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, keys, 0,
-                            True)
+            n = self._carve_voxels(self._all_bricks, 3 * L, k, mv, 0, True)
             return keys[:n]
         n = 0
         cells = self._root_cells
         last = t.box_levels - 1
         for lvl in range(t.box_levels):
             n_edge, n_full = classify_cells(cells, t.boxes[lvl], cams, self._sat, t.sat_offset, t.sat_stride, k, mv,
-                                        lvl < last, self._edge[lvl], self._full[lvl])
+                                            lvl < last, self._edge[lvl], self._full[lvl],
+                                            None if self.occluders is None else self._sat_fg)
             if n_full:
                 n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
             cells = self._edge[lvl][:n_edge]
-        n = carve_cells(cells, 3 * (L - last), t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, keys, n,
-                        False)
+        n = self._carve_voxels(cells, 3 * (L - last), k, mv, n, False)
         return keys[:n]
 
     def _indices(self, keys: np.ndarray) -> np.ndarray:
@@ -206,7 +308,9 @@ class Reconstructor:
         if unknown:
             raise ValueError(f"masks: unknown camera {sorted(unknown)[0]!r} (have {', '.join(self.names)})")
         t0 = time.perf_counter()
-        indices = self._indices(self._carve_keys(self._upload_masks(masks)))
+        cams = self._upload_masks(masks)
+        indices = self._indices(self._carve_keys(cams))
+        self._after_carving(cams)
         t1 = time.perf_counter()
         timings = {"carve": (t1 - t0) * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
         if self.floor is not None:
@@ -233,6 +337,9 @@ class Reconstructor:
         for img in images.values():
             img.flags.writeable = False
         self.reconstruct(masks, images)
+        if self.occluders is not None:  # the warm-up frames are no evidence
+            self.occluders.reset()
+        self.frames_carved = 0
         if self.floor is not None:  # the tiny blob may leave no voxel for the floor filter
             self.floor(np.zeros((2, 3), dtype=np.uint16))
         lay = self.layout
