@@ -1,0 +1,186 @@
+"""Pose of every tracked person from one frame's voxels: one filter per track.
+
+:class:`PoseEstimator` takes a frame's occupied voxels and the tracks (ids and
+centroids), gives each voxel to the nearest track (in the floor plane, within
+``reach``), so that each person's likelihood ignores the voxels owned by the others,
+and steps that person's :class:`PersonPose`. A new track starts its filter from the
+detections of :mod:`app.pose.detections` (all particles drawn from the importance
+function); later frames draw a fraction of the first layer from it (IAPF). Limb
+lengths follow the stature, estimated from the top of the person's blob over the
+first ``height_frames`` frames (``1.02 H``: the top of the head is a little above the
+stature of the model).
+
+Methods: ``apf`` (§6.5, Alg. 3), ``shbm`` (SHBM-APF, §7.3), ``ddm`` (APF with DDM limb
+switching, §7.4) and ``shbm+ddm`` (both, the thesis's future work).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.messages import JOINTS
+from app.pose.detections import Importance, detect
+from app.pose.filters import APF, SHBMAPF, LimbSwitch
+from app.pose.flesh import build_flesh
+from app.pose.likelihood import Scorer
+from app.pose.model import BodyModel, neutral_state
+from app.pose.observation import observe
+
+__all__ = ["PoseSettings", "PersonPose", "PoseEstimator", "METHODS", "assign_voxels"]
+
+METHODS = ("apf", "shbm", "ddm", "shbm+ddm")
+
+
+@dataclass
+class PoseSettings:
+    method: str = "shbm"
+    voxel_size: float = 0.02
+    density: float = 2.0            # delta of Eq. 6.26
+    likelihood: str = "partitioned"  # or "global"
+    particles: int = 600            # APF: particles per layer
+    layers: int = 6                 # APF: annealing layers
+    alpha: float = 0.5              # survival rate per layer
+    gamma: int = 50                 # SHBM-APF: particles per new DoF
+    importance_fraction: float = 0.2
+    reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
+    height_frames: int = 5
+    seed: int = 0
+    room_lo: tuple = (0.0, 0.0, 0.0)
+    room_hi: tuple = (5.0, 4.0, 2.5)
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"pose method {self.method!r} is not one of {', '.join(METHODS)}")
+        if self.likelihood not in ("partitioned", "global"):
+            raise ValueError(f"likelihood {self.likelihood!r} must be partitioned or global")
+        if not self.density >= 1:
+            raise ValueError(f"density {self.density} must be >= 1")
+
+
+def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float) -> np.ndarray:
+    """Index of the owning track of every voxel (nearest in the floor plane), -1 for none."""
+    if len(positions) == 0 or len(centres) == 0:
+        return np.full(len(centres), -1, dtype=np.int64)
+    d = np.linalg.norm(centres[:, None, :2] - positions[None, :, :2], axis=2)
+    owner = np.argmin(d, axis=1)
+    owner[d[np.arange(len(centres)), owner] > reach] = -1
+    return owner
+
+
+_FLESH_CACHE: dict = {}
+
+
+def _flesh(height, voxel_size, density):
+    key = (round(height, 2), round(voxel_size, 4), float(density))
+    if key not in _FLESH_CACHE:
+        _FLESH_CACHE[key] = build_flesh(key[0], voxel_size, density)
+    return _FLESH_CACHE[key]
+
+
+class PersonPose:
+    """One person's filter and body."""
+
+    def __init__(self, settings: PoseSettings, track_id: int, rng: np.random.Generator):
+        self.s = settings
+        self.id = track_id
+        self.rng = rng
+        self.tops: list[float] = []
+        self.height = None
+        self.filter = None
+        self.switch = None
+        self.state = None
+        self.last_position = None
+        self.frames = 0
+
+    def _make(self, height: float) -> None:
+        s = self.s
+        self.height = height
+        self.model = BodyModel(height)
+        self.scorer = Scorer(_flesh(height, s.voxel_size, s.density), s.likelihood)
+        kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
+        if s.method.startswith("shbm"):
+            self.filter = SHBMAPF(gamma=s.gamma, **kw)
+        else:
+            self.filter = APF(particles=s.particles, layers=s.layers, alpha=s.alpha, **kw)
+        self.switch = LimbSwitch(rng=self.rng) if s.method.endswith("ddm") else None
+
+    def update(self, centres: np.ndarray, surface, position: np.ndarray):
+        """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
+        body is known."""
+        s = self.s
+        velocity = None
+        if self.last_position is not None:
+            velocity = (position - self.last_position) * 25.0
+        if len(centres) >= 30:
+            self.tops.append(float(centres[:, 2].max()))
+        if self.filter is None:
+            if len(self.tops) < 1:
+                return None
+            self._make(float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05)))
+        elif self.frames < s.height_frames and len(self.tops):
+            h = float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05))
+            if abs(h - self.height) > 0.015:   # the stature grows with more views of the top
+                keep = self.filter
+                self._make(h)
+                self.filter.particles = keep.particles
+        obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface)
+        self.scorer.set_observation(obs)
+        det = detect(centres, self.height, velocity)
+        importance = Importance(det, self.height) if det is not None else None
+        if self.state is None:
+            start = neutral_state(self.height, (position[0], position[1], None))
+            self.filter.reset(start, importance=importance)
+        elif self.last_position is not None:
+            self.filter.shift(position - self.last_position)
+        if self.switch is not None:
+            self.filter.frozen = self.switch.frozen()
+        active = self.switch.part_mask() if self.switch is not None else None
+        est = self.filter.step(self.scorer, active=active, importance=importance)
+        if self.switch is not None:
+            est = self.switch.update(self.scorer, self.filter, est)
+        self.state = est
+        self.last_position = np.asarray(position, dtype=np.float64).copy()
+        self.frames += 1
+        joints = self.model.joints(est)
+        flags = self.switch.joint_flags() if self.switch is not None else np.ones(len(JOINTS), dtype=bool)
+        return joints, flags
+
+    def corrupt(self, state: np.ndarray) -> None:
+        """Replace the filter's belief by ``state`` (a test of recovery)."""
+        n = len(self.filter.particles)
+        self.filter.particles = np.tile(state, (n, 1))
+        self.state = state.copy()
+
+
+@dataclass
+class PoseEstimator:
+    """Every person's pose, frame after frame."""
+
+    settings: PoseSettings = field(default_factory=PoseSettings)
+    people: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.settings.validate()
+        self.rng = np.random.default_rng(self.settings.seed)
+
+    def update(self, centres: np.ndarray, surface, ids, positions) -> dict:
+        """``{track id: (joints (15, 3), active (15,))}`` for every track with a body."""
+        centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        ids = [int(i) for i in ids]
+        owner = assign_voxels(centres, positions, self.settings.reach)
+        surface = None if surface is None or len(surface) != len(centres) else np.asarray(surface, bool)
+        out = {}
+        for k, tid in enumerate(ids):
+            person = self.people.get(tid)
+            if person is None:
+                person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(
+                    [self.settings.seed, tid]))
+            mine = owner == k
+            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k])
+            if res is not None:
+                out[tid] = res
+        for gone in set(self.people) - set(ids):
+            del self.people[gone]
+        return out

@@ -1,0 +1,191 @@
+"""Scores and likelihood of a pose against the voxels (thesis §6.5.1.1-6.5.1.2).
+
+Per body part ``Y`` of the fleshed model moved to a particle's pose ``V_y^HBM``:
+
+* outside ``rho_Out`` (Eq. 6.13): fraction of the part's voxels outside the analysed room;
+* double occupancy ``rho_DO`` (Eq. 6.14): fraction in a model voxel that another part
+  also fills (inter-penetration; counted on a scratch grid at the model's spacing);
+* occupancy ``rho_Occ`` (Eq. 6.15): fraction on an occupied data voxel; the likelihood
+  uses ``rho_Empty = 1 - rho_Occ``;
+* surface ``rho_Surf`` (Eq. 6.16): mean of ``1 - ~V^S`` over the part's surface voxels.
+
+The likelihood is either *global* (Eqs. 6.17-6.22: scores pooled over parts weighted
+by their sizes, one Gaussian with ``Sigma = diag(0.01, 0.01, 0.1, 0.1)``) or
+*partitioned* (Eqs. 6.23-6.25: a product of per-part Gaussians with the covariances of
+Table 6.2). Table 6.2 is garbled in the extracted text (two rows named "Forelegs", the
+head with two matrices); reconstructed from its explanation: the end parts of the
+limbs (forearms, shins) and the torso get halved empty/surface variances, the torso a
+doubled double-occupancy variance, the other parts the base values.
+
+``score_particles`` (numba, the hot loop) returns the four scores of every part of
+every particle; the (cheap) combination into log-weights is numpy.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from app.pose.flesh import PART, PARTS, Flesh
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, N_SEG, SEG_OFFSET, SEG_PARENT, fk_segments
+from app.pose.observation import Observation
+
+__all__ = ["Scorer", "SIGMA2", "part_variances", "log_likelihood", "score_particles"]
+
+#: Base variances (sigma_Out^2, sigma_DO^2, sigma_Empty^2, sigma_Surf^2), §6.5.1.2.
+SIGMA2 = np.array([0.01, 0.01, 0.1, 0.1])
+
+
+def part_variances() -> np.ndarray:
+    """Per-part covariance diagonals ``(Q, 4)`` of the partitioned likelihood (Table 6.2,
+    reconstructed, see module docstring)."""
+    v = np.tile(SIGMA2, (len(PARTS), 1))
+    for name in ("l_forearm", "r_forearm", "l_shin", "r_shin"):
+        v[PART[name], 2:] *= 0.5
+    v[PART["torso"], 1] *= 2.0
+    v[PART["torso"], 2:] *= 0.5
+    return v
+
+
+@njit(cache=True, nogil=True)
+def score_particles(states, height, pts, seg, part, surf, active, n_parts,
+                    occ, prox, origin, vsize, room_lo, room_hi,
+                    do_stamp, do_owner, do_multi, do_origin, do_size, token0, out):
+    """Scores ``out (P, Q, 5)`` = (outside, double, occupied, surface-miss, surface count)
+    *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``."""
+    S = SEG_PARENT_G.shape[0]
+    R = np.empty((S, 3, 3))
+    O = np.empty((S, 3))
+    M = pts.shape[0]
+    W = np.empty((M, 3))
+    X, Y, Z = occ.shape
+    DX, DY, DZ = do_stamp.shape
+    for k in range(states.shape[0]):
+        token = token0 + k
+        fk_segments(states[k], height, SEG_PARENT_G, SEG_OFFSET_G, DOF_SEGMENT_G, DOF_AXIS_G, R, O)
+        for q in range(n_parts):
+            for c in range(5):
+                out[k, q, c] = 0.0
+        # pass 1: world positions, outside, occupancy, surface; stamp the DO grid
+        for m in range(M):
+            q = part[m]
+            if not active[q]:
+                continue
+            s = seg[m]
+            px, py, pz = pts[m, 0], pts[m, 1], pts[m, 2]
+            x = O[s, 0] + R[s, 0, 0] * px + R[s, 0, 1] * py + R[s, 0, 2] * pz
+            y = O[s, 1] + R[s, 1, 0] * px + R[s, 1, 1] * py + R[s, 1, 2] * pz
+            z = O[s, 2] + R[s, 2, 0] * px + R[s, 2, 1] * py + R[s, 2, 2] * pz
+            W[m, 0], W[m, 1], W[m, 2] = x, y, z
+            if x < room_lo[0] or y < room_lo[1] or z < room_lo[2] or x > room_hi[0] or y > room_hi[1] or z > room_hi[2]:
+                out[k, q, 0] += 1.0
+            i = int(np.floor((x - origin[0]) / vsize))
+            j = int(np.floor((y - origin[1]) / vsize))
+            l = int(np.floor((z - origin[2]) / vsize))
+            inside = 0 <= i < X and 0 <= j < Y and 0 <= l < Z
+            if inside and occ[i, j, l] != 0:
+                out[k, q, 2] += 1.0
+            if surf[m]:
+                out[k, q, 4] += 1.0
+                p = prox[i, j, l] if inside else 0.0
+                out[k, q, 3] += 1.0 - p
+            a = int(np.floor((x - do_origin[0]) / do_size))
+            b = int(np.floor((y - do_origin[1]) / do_size))
+            c = int(np.floor((z - do_origin[2]) / do_size))
+            if 0 <= a < DX and 0 <= b < DY and 0 <= c < DZ:
+                if do_stamp[a, b, c] != token:
+                    do_stamp[a, b, c] = token
+                    do_owner[a, b, c] = q
+                    do_multi[a, b, c] = 0
+                elif do_owner[a, b, c] != q:
+                    do_multi[a, b, c] = 1
+        # pass 2: double occupancy
+        for m in range(M):
+            q = part[m]
+            if not active[q]:
+                continue
+            a = int(np.floor((W[m, 0] - do_origin[0]) / do_size))
+            b = int(np.floor((W[m, 1] - do_origin[1]) / do_size))
+            c = int(np.floor((W[m, 2] - do_origin[2]) / do_size))
+            if 0 <= a < DX and 0 <= b < DY and 0 <= c < DZ:
+                if do_stamp[a, b, c] == token and do_multi[a, b, c] != 0:
+                    out[k, q, 1] += 1.0
+
+
+# the kinematic tables as numba globals (compile-time constants)
+SEG_PARENT_G = SEG_PARENT
+SEG_OFFSET_G = SEG_OFFSET
+DOF_SEGMENT_G = DOF_SEGMENT
+DOF_AXIS_G = DOF_AXIS
+
+
+def normalise(counts: np.ndarray, flesh: Flesh) -> np.ndarray:
+    """Per-part scores ``(P, Q, 4)`` = (rho_Out, rho_DO, rho_Empty, rho_Surf) from counts."""
+    size = flesh.part_size[None, :]
+    out = np.empty(counts.shape[:2] + (4,))
+    out[..., 0] = counts[..., 0] / size
+    out[..., 1] = counts[..., 1] / size
+    out[..., 2] = 1.0 - counts[..., 2] / size
+    out[..., 3] = counts[..., 3] / np.maximum(counts[..., 4], 1.0)
+    return out
+
+
+def log_likelihood(scores: np.ndarray, flesh: Flesh, active: np.ndarray, mode: str = "partitioned") -> np.ndarray:
+    """``log w(z, y)`` per particle from per-part scores ``(P, Q, 4)`` over the active parts:
+    partitioned (Eqs. 6.23-6.25) or global (Eqs. 6.17-6.22)."""
+    act = np.asarray(active, dtype=bool)
+    if mode == "partitioned":
+        var = part_variances()[act]
+        return -0.5 * np.sum(scores[:, act, :] ** 2 / var[None], axis=(1, 2))
+    if mode == "global":
+        size = flesh.part_size[act]
+        ssize = flesh.surface_size[act]
+        g = np.empty((scores.shape[0], 4))
+        g[:, :3] = np.einsum("pqc,q->pc", scores[:, act, :3], size) / size.sum()
+        g[:, 3] = scores[:, act, 3] @ ssize / max(ssize.sum(), 1.0)
+        return -0.5 * np.sum(g ** 2 / SIGMA2[None], axis=1)
+    raise ValueError(f"likelihood must be 'partitioned' or 'global', not {mode!r}")
+
+
+class Scorer:
+    """Evaluates particles of one person's body against one observation at a time."""
+
+    def __init__(self, flesh: Flesh, mode: str = "partitioned"):
+        if mode not in ("partitioned", "global"):
+            raise ValueError(f"likelihood must be 'partitioned' or 'global', not {mode!r}")
+        self.flesh = flesh
+        self.mode = mode
+        self.obs: Observation | None = None
+        self._token = 1
+        self.evaluations = 0
+
+    def set_observation(self, obs: Observation) -> None:
+        self.obs = obs
+        h = self.flesh.spacing
+        span = obs.occ.shape[0] * obs.voxel_size, obs.occ.shape[1] * obs.voxel_size, obs.occ.shape[2] * obs.voxel_size
+        dims = tuple(int(np.ceil(v / h)) + 1 for v in span)
+        if getattr(self, "_do", None) is None or self._do[0].shape != dims:
+            self._do = (np.zeros(dims, np.int64), np.zeros(dims, np.int16), np.zeros(dims, np.uint8))
+            self._token = 1
+        self._do_origin = obs.origin.astype(np.float64)
+
+    def counts(self, states: np.ndarray, active=None) -> np.ndarray:
+        obs, f = self.obs, self.flesh
+        Q = len(PARTS)
+        act = np.ones(Q, dtype=np.bool_) if active is None else np.asarray(active, dtype=np.bool_)
+        states = np.ascontiguousarray(states, dtype=np.float64)
+        out = np.empty((len(states), Q, 5))
+        stamp, owner, multi = self._do
+        score_particles(states, f.height, f.points, f.segment, f.part, f.surface, act, Q,
+                        obs.occ, obs.prox, obs.origin, obs.voxel_size, obs.room_lo, obs.room_hi,
+                        stamp, owner, multi, self._do_origin, f.spacing, self._token, out)
+        self._token += len(states)
+        self.evaluations += len(states)
+        return out
+
+    def scores(self, states: np.ndarray, active=None) -> np.ndarray:
+        """Per-part (rho_Out, rho_DO, rho_Empty, rho_Surf) of every state ``(P, Q, 4)``."""
+        return normalise(self.counts(states, active), self.flesh)
+
+    def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
+        act = np.ones(len(PARTS), dtype=bool) if active is None else np.asarray(active, dtype=bool)
+        return log_likelihood(self.scores(states, act), self.flesh, act, self.mode)
