@@ -17,6 +17,7 @@ KINDS = {
     "recorder": "workers.recorder:Recorder",
     "viewer": "workers.viewer:Viewer",
     "monitor": "workers.monitor:Monitor",
+    "exporter": "workers.exporter:Exporter",
 }
 
 

@@ -1,0 +1,76 @@
+"""Exporter: writes the captured people as BVH / C3D / TRC / CSV while the run goes on
+(a sink of ``poses``; the formats are :mod:`app.export`'s, the live bookkeeping is
+:class:`app.export.live.LiveExport`).
+
+Parameters: ``formats`` (any of bvh, c3d, trc, csv), ``out`` (a folder, relative to the
+run's results folder unless absolute) and ``up`` ("" for each format's default, "y"
+for OpenSim-style y-up, "z" for the room's own axes; BVH is always y-up). The files are
+complete, with their final names, only once the run's input has ended; meanwhile the
+TRC and CSV files grow as readable ``.partial`` prefixes.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from app.errors import InputError
+from app.export import FORMATS
+from app.messages import Poses
+from workers.base import Worker
+
+FLUSH_PERIOD_S = 0.5
+
+
+class Exporter(Worker):
+    KIND = "exporter"
+    CONSUMES = ("poses",)
+    ACCEPTS = (Poses,)
+    INBOX_DEPTH = 1000   # keep results rather than drop them (bounded all the same)
+    DEFAULTS = {
+        "formats": list(FORMATS),   # which files to write
+        "out": "export",            # folder, relative to the results folder unless absolute
+        "up": "",                   # "" per-format default (TRC y-up, C3D/CSV z-up), or "y" / "z"
+    }
+    CHOICES = {"up": ("", "y", "z")}
+
+    def setup(self) -> None:
+        from app.export.live import LiveExport
+        formats = self.params["formats"]
+        bad = [f for f in formats if f not in FORMATS]
+        if bad or not formats:
+            raise InputError(f"exporter {self.name}: formats must be some of {', '.join(FORMATS)}, got {formats!r}")
+        if self.params["up"] not in ("", "y", "z"):
+            raise InputError(f"exporter {self.name}: up must be y, z or empty, got {self.params['up']!r}")
+        if "c3d" in formats:
+            from app.export.c3d import ezc3d_module
+            ezc3d_module()
+        folder = Path(self.params["out"])
+        if not folder.is_absolute():
+            if not self.layout.run.out:
+                raise InputError(f"exporter {self.name}: a relative out folder needs the run's --out")
+            folder = Path(self.layout.run.out) / folder
+        fps = self.layout.run.fps
+        if not fps:
+            raise InputError(f"exporter {self.name}: the run has no frame rate")
+        resume = getattr(self, "incarnation", 0) > 0
+        self.export = LiveExport(folder, formats, fps, self.params["up"], resume=resume)
+        self._flushed = time.monotonic()
+
+    def handle(self, key: str, msg: Poses) -> None:
+        from app.export.poses import pose_record
+        self.export.add(pose_record(msg.frame, msg.t, msg.tracks, msg.joints, msg.active))
+        self.ledger.emitted(msg.frame, msg.stamp)
+
+    def tick(self) -> None:
+        if hasattr(self, "export") and time.monotonic() - self._flushed >= FLUSH_PERIOD_S:
+            self.export.flush()
+            self._flushed = time.monotonic()
+
+    def close(self) -> None:
+        if not hasattr(self, "export"):
+            return
+        if getattr(self, "input_ended", True):   # the true end of the run: complete the files
+            paths = self.export.finish()
+            self.log.info("exported %d file(s) to %s", len(paths), self.export.folder)
+        else:                                    # stopped early: a restart carries on
+            self.export.abandon()
