@@ -10,11 +10,14 @@ between processes of one host through its shared-memory transport by itself.
 from __future__ import annotations
 
 import json
+import re
 import socket
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import zenoh
 
+from app.bus_section import AuthConfig, TlsConfig, check_endpoints
+from app.errors import InputError
 from app.messages import Message, MessageError, decode
 
 __all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "MessageError"]
@@ -22,12 +25,16 @@ __all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "Messa
 
 @dataclass
 class BusConfig:
-    """Where the session listens and connects (zenoh endpoint strings)."""
+    """Where the session listens and connects (zenoh endpoint strings), and how it
+    admits other hosts: zenoh's TLS (mutual, with the room's CA) and user/password
+    authentication (see app/bus_section.py, which parses the layout's bus section)."""
 
     listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
     connect: list[str] = field(default_factory=list)
     multicast: bool = False
     shm: bool = True    # zenoh's shared-memory transport between processes of one host
+    tls: TlsConfig | None = None
+    auth: AuthConfig | None = None
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config()
@@ -36,12 +43,17 @@ class BusConfig:
         conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
         conf.insert_json5("transport/shared_memory/enabled", "true" if self.shm else "false")
+        if self.tls is not None:
+            conf.insert_json5("transport/link/tls", json.dumps(self.tls.to_zenoh()))
+        if self.auth is not None:
+            conf.insert_json5("transport/auth/usrpwd", json.dumps(self.auth.to_zenoh()))
         return conf
 
     def for_worker(self) -> "BusConfig":
-        """A worker connects to what the hub listens on and listens on a free port."""
-        return BusConfig(listen=["tcp/127.0.0.1:0"], connect=list(self.connect or self.listen),
-                         multicast=self.multicast, shm=self.shm)
+        """A worker connects to what the hub listens on and listens on a free loopback
+        port (over TLS, with the same certificate and credentials, when the bus uses it)."""
+        listen = ("tls" if self.tls is not None else "tcp") + "/127.0.0.1:0"
+        return replace(self, listen=[listen], connect=list(self.connect or self.listen))
 
 
 def free_port() -> int:
@@ -52,7 +64,16 @@ def free_port() -> int:
 
 
 def open_session(bus: BusConfig) -> zenoh.Session:
-    return zenoh.open(bus.to_zenoh())
+    """Open a zenoh session; a bad endpoint (syntax, a host that does not resolve, an
+    address that cannot be bound) is an :class:`InputError` of one line, not a zenoh error."""
+    check_endpoints(bus.listen, bus.connect, bus.tls, resolve=True)
+    try:
+        return zenoh.open(bus.to_zenoh())
+    except zenoh.ZError as exc:
+        # zenoh appends " at /path/file.rs:NN." to each cause: keep the words, drop the places
+        reason = re.sub(r"\s+at /\S+?\.rs:\d+\.?", "", " ".join(str(exc).split())) or type(exc).__name__
+        endpoints = ", ".join([f"listen {ep}" for ep in bus.listen] + [f"connect {ep}" for ep in bus.connect])
+        raise InputError(f"bus ({endpoints}): zenoh cannot open a session: {reason}") from None
 
 
 class Keys:

@@ -27,6 +27,7 @@ from pathlib import Path
 import yaml
 
 from app.bus import BusConfig
+from app.bus_section import parse_bus
 from app.errors import InputError
 from app.files import read_yaml, write_atomic
 
@@ -159,15 +160,7 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
     room = data.get("room", "smartroom")
     if not isinstance(room, str) or not room or any(c in room for c in "/*$?# "):
         raise LayoutError(f"{path}: room must be a plain word, got {room!r}")
-    bus_d = data.get("bus") or {}
-    if not isinstance(bus_d, dict) or set(bus_d) - {"listen", "connect", "multicast", "shm"}:
-        raise LayoutError(f"{path}: bus takes listen, connect, multicast and shm")
-    for key in ("listen", "connect"):
-        v = bus_d.get(key)
-        if v is not None and (not isinstance(v, list) or not all(isinstance(e, str) and "/" in e for e in v)):
-            raise LayoutError(f"{path}: bus.{key} must be a list of zenoh endpoints like tcp/127.0.0.1:7447")
-    bus = BusConfig(listen=bus_d.get("listen") or ["tcp/127.0.0.1:0"], connect=bus_d.get("connect") or [],
-                    multicast=bool(bus_d.get("multicast", False)), shm=bool(bus_d.get("shm", True)))
+    bus = parse_bus(data.get("bus"), path, LayoutError)   # endpoints, TLS, user/password
     entries = data.get("workers")
     if not isinstance(entries, list) or not entries:
         raise LayoutError(f"{path}: workers must be a non-empty list")
