@@ -135,3 +135,121 @@ def format_table(result: dict) -> str:
                          f"{a['spurious_mean']:9.1f} {a['ghost_mean']:7.0f} {100 * a['frames_with_floor_blob_over_20']:14.1f}% "
                          f"{a['floor_blob_max']:8d}")
     return "\n".join(lines)
+
+
+# -- issue 8: how tight is the hull, and what segmentation and carving each lose --------
+
+#: The carving variants of the hull table: (name, Reconstructor options).
+HULL_VARIANTS = (
+    ("k=0", {"tolerance": 0}),
+    ("k=1", {"tolerance": 1}),
+    ("occluders", {"tolerance": 0, "occlusion": "learnt"}),
+)
+HULL_TARGET = {"volume_ratio": 2.5, "recall": 0.97, "largest_share": 0.9}
+
+
+def true_silhouettes(recording, frames: int, scale: int) -> list[dict]:
+    """The simulator's true silhouettes (every person pixel, whoever's) of the first
+    ``frames`` frames of a simulated recording at ``1/scale`` of the image size: a
+    pixel is foreground when at least half of it is person (evaluation only: the
+    product never sees them)."""
+    import json
+
+    import cv2
+
+    from app.errors import InputError
+    from app.recording import Recording
+    from app.simulation.simulator import Simulator
+
+    path = Path(recording) / "simulation.json"
+    if not path.is_file():
+        raise InputError(f"{recording}: no simulation.json, so no true silhouettes (a simulated recording is needed)")
+    meta = json.loads(path.read_text())
+    calib = Recording(recording).calibration
+    cam0 = calib.cameras[0]
+    sim = Simulator(meta["scene"], seed=meta["seed"], fps=meta["fps"], seconds=meta["seconds"],
+                    width=cam0.width, height=cam0.height, zenithal=meta.get("zenithal", False),
+                    cameras=list(calib.names))
+    out = []
+    for i in range(frames):
+        _, labels, _ = sim.render(i, noise=False)
+        masks = {}
+        for cam in calib.cameras:
+            w, h = cam.width // scale, cam.height // scale
+            person = (labels[cam.name] >= 0).astype(np.float32)
+            masks[cam.name] = cv2.resize(person, (w, h), interpolation=cv2.INTER_AREA) >= 0.5
+        out.append(masks)
+    return out
+
+
+def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: int = 10, min_top: float = 0.25,
+               variants=HULL_VARIANTS, truth: bool = True, verbose: bool = True) -> list[dict]:
+    """Issue 8's before/after table: for every voxel size, carving variant and mask
+    source (the segmentation's MOG2 masks at the matched scale, and the simulator's
+    true silhouettes), the hull's volume over the true body volume, recall and the
+    fragmentation (largest connected component near each person), scored with
+    :func:`app.evaluation.reconstruction.score_frame` on the frames after ``warmup``.
+    Every frame is carved in order (learnt occluders learn over the run); carve ms
+    p50 per frame is timed on the scored frames."""
+    from app.evaluation.reconstruction import score_frame, summarise_scores
+    from app.reconstruction import Reconstructor
+    from app.recording import Recording
+    from app.segmentation import matched_scale
+    from app.simulation.occupancy import load_bodies, true_occupancy
+
+    calib = Recording(recording).calibration
+    bodies = {r["frame"]: r for r in load_bodies(recording)}
+    rows = []
+    for vs in voxel_sizes:
+        scale = matched_scale(calib, vs)
+        _, segmented, seg_ms, indices = segment_frames(recording, frames, scale)
+        sources = [("mog2", [m for m, _ in segmented])]
+        if truth:
+            sources.append(("true", true_silhouettes(recording, len(indices), scale)))
+        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        truths = {}
+        for name, options in variants:
+            for source, masks_list in sources:
+                r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", min_top=min_top, **options)
+                scores, ms = [], []
+                for n, (masks, i) in enumerate(zip(masks_list, indices)):
+                    t0 = time.perf_counter()
+                    idx = r.carve(masks)
+                    if n < warmup:
+                        continue
+                    ms.append((time.perf_counter() - t0) * 1e3)
+                    if i not in truths:
+                        truths[i] = true_occupancy(bodies[i], r.grid.origin, vs, r.grid.dims, with_person=True)
+                    truth_idx, who = truths[i]
+                    scores.append(score_frame(i, idx, truth_idx, r.grid.dims, vs, truth_person=who))
+                s = summarise_scores(scores)
+                row = {"voxel_size": vs, "mask_scale": scale, "variant": name, "masks": source,
+                       "carve_p50": float(np.percentile(ms, 50)) if ms else None,
+                       "segmentation_p50": float(np.percentile(seg_ms[warmup:], 50)) if source == "mog2" else None,
+                       "occluder_share": {k: round(v, 4) for k, v in r.occluder_share().items()}, **s}
+                rows.append(row)
+                if verbose:
+                    print(format_hull_row(row), flush=True)
+    return rows
+
+
+HULL_HEADER = (f"{'voxel':>5} {'mask':>5} {'variant':<10} {'masks':<5} {'recall':>6} {'min':>6} {'volume':>7} "
+               f"{'near':>6} {'share min':>9} {'in pieces':>9} {'carve ms':>8}  target")
+
+
+def format_hull_row(r: dict) -> str:
+    ok = (r["recall"] >= HULL_TARGET["recall"] and r["volume_ratio"] <= HULL_TARGET["volume_ratio"]
+          and r["largest_share_min"] >= HULL_TARGET["largest_share"])
+    return (f"{r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} {r['variant']:<10} {r['masks']:<5} "
+            f"{r['recall']:6.3f} {r['recall_min']:6.3f} {r['volume_ratio']:6.2f}x {r['volume_ratio_near']:5.2f}x "
+            f"{r['largest_share_min']:9.3f} {100 * r['frames_in_pieces']:8.0f}% {r['carve_p50'] or 0:8.1f}  "
+            f"{'met' if ok else 'not met'}")
+
+
+def format_hull_table(rows: list[dict], recording, frames: int) -> str:
+    lines = [f"hull of {recording}: {frames} frames scored; volume = occupied / true body voxels (near: within "
+             f"10 cm of a body); share min = the least share of a person's nearby voxels in one component; "
+             f"target: recall >= {HULL_TARGET['recall']} at volume <= {HULL_TARGET['volume_ratio']}x, "
+             f"share >= {HULL_TARGET['largest_share']}", HULL_HEADER]
+    lines += [format_hull_row(r) for r in rows]
+    return "\n".join(lines)

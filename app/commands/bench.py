@@ -30,6 +30,9 @@ def add_arguments(p) -> None:
     p.add_argument("--tolerance", type=int, default=1, help="reconstruction: k, cameras that may miss a voxel")
     p.add_argument("--min-top", type=float, default=0.25,
                    help="reconstruction: drop blobs lower than this (m); 0 = the thesis (keep all)")
+    p.add_argument("--hull", action="store_true",
+                   help="reconstruction: only the hull table of issue 8 (k=0, k=1, learnt occluders; MOG2 and "
+                        "true silhouettes; volume, recall, fragmentation) on a simulated recording")
 
 
 def _bus(args, out: Path) -> dict:
@@ -88,6 +91,11 @@ def _reconstruction(args, out: Path) -> dict:
     except ValueError:
         raise InputError(f"--voxel-sizes {args.voxel_sizes}: expected centimetres like 2,3,4,5") from None
     frames = args.frames or 60
+    if args.hull:
+        rows = reconstruction.hull_table(run.recording, frames=frames + 10, voxel_sizes=sizes, min_top=args.min_top,
+                                         verbose=False)
+        print(reconstruction.format_hull_table(rows, run.recording, frames))
+        return {"recording": run.recording, "frames": frames, "hull": rows}
     print(f"smartroom bench reconstruction: {frames} frames of {run.recording}", file=sys.stderr)
     print(reconstruction.HEADER)
     result = reconstruction.run(run.recording, frames=frames + 10, voxel_sizes=sizes, tolerance=args.tolerance,

@@ -51,7 +51,7 @@ __all__ = ["classify_cells", "carve_cells", "fill_cells", "mask_votes", "occlude
 
 @njit(cache=True, nogil=True)
 def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, min_views, expand, out_edge, out_full,
-                   sat_fg=None):
+                   sat_fg=None, full_views=0):
     """Classify ``cells`` (ids at one box level) from the summed-area tables ``sat`` of
     the cameras ``cams`` (those with a mask this frame).
 
@@ -62,8 +62,10 @@ def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, m
     With occluder masks (:mod:`.occlusion`) ``sat`` counts the pixels that *may* vote
     foreground (foreground, or background behind a learnt occluder, which abstains) and
     ``sat_fg`` the foreground pixels alone: a camera surely says foreground only when
-    its whole box is foreground in ``sat_fg``.
+    its whole box is foreground in ``sat_fg``. A cell is foreground only with at least
+    ``max(min_views, full_views)`` cameras surely saying so.
     """
+    fill_views = max(min_views, full_views)
     n_edge = 0
     n_full = 0
     n_cams = cams.shape[0]
@@ -111,7 +113,7 @@ def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, m
                 break
         if sure_bg > tolerance or may_fg < min_views:
             continue
-        if sure_fg >= min_views and may_bg <= tolerance:
+        if sure_fg >= fill_views and may_bg <= tolerance:
             out_full[n_full] = cell
             n_full += 1
         elif expand:
@@ -168,10 +170,12 @@ def _vote(v, c, i, j, k, q, depth_coef, occ_depth):
 
 @njit(cache=True, nogil=True)
 def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolerance, min_views, brick_key, local_key,
-                         shift_i, shift_j, out, n):
+                         shift_i, shift_j, out, n, support=0):
     """:func:`carve_cells` with learnt occluders: a camera abstains on a voxel behind
     one of its occluders (its pixel votes :data:`OCC_VOTE` and the voxel's depth in
-    that camera, ``depth_coef . (i, j, k, 1)``, is at least ``occ_depth`` there)."""
+    that camera, ``depth_coef . (i, j, k, 1)``, is at least ``occ_depth`` there). A
+    voxel on which a camera abstains needs ``support`` foreground votes (and
+    ``min_views``)."""
     n_cams = lut.shape[1]
     bshift = np.int64(0)
     while (np.int64(1) << bshift) < local_key.shape[0]:
@@ -189,10 +193,15 @@ def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolera
             j = (key >> shift_j) & mask_j
             k = key & mask_k
             total = 0
+            abstain = 0
             for c in range(n_cams):
                 q = lut[p, c]
-                total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
-            if (total >> VOTE_SHIFT) <= tolerance and (total & MAX_CAMERAS) >= min_views:
+                v = _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
+                total += v
+                if v == 0 and votes[q] == OCC_VOTE:
+                    abstain += 1
+            fg = total & MAX_CAMERAS
+            if (total >> VOTE_SHIFT) <= tolerance and fg >= min_views and (abstain == 0 or fg >= support):
                 out[n] = key
                 n += 1
     return n

@@ -64,6 +64,8 @@ class Reconstructor:
         occluder test of :class:`~.occlusion.OccluderModel`.
     learn_every : learn occluders from every n-th reconstructed frame (0: never, the
         masks stay as they are).
+    abstain_support : a voxel on which a camera abstains behind an occluder needs
+        ``occlusion_support`` foreground votes (not only ``min_views``).
     """
 
     def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
@@ -72,7 +74,8 @@ class Reconstructor:
                  box_levels: int = 2, splat: float = 1.0, depth_tolerance: float = 3.0, march: int = 6,
                  threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
                  occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
-                 occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1):
+                 occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
+                 abstain_support: bool = True):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -128,6 +131,7 @@ class Reconstructor:
             self._fg = np.zeros(t.mask_total, dtype=np.uint8)          # the masks, 0/1
             self._sat_fg = np.zeros(t.sat_total, dtype=np.int32)
         self.occlusion = occlusion
+        self.abstain_support = bool(abstain_support)
         self.learn_every = int(learn_every)
         self.frames_carved = 0
         views = t.views_per_brick()
@@ -238,7 +242,8 @@ class Reconstructor:
             return carve_cells(cells, shift, t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, self._keys, n,
                                early_exit)
         return carve_cells_occluded(cells, shift, t.lut, self._votes, self._depth_coef, self.occluders.occ_depth, k, mv,
-                                    lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j, self._keys, n)
+                                    lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j, self._keys, n,
+                                    self.occluders.support if self.abstain_support else 0)
 
     def occluder_share(self) -> dict:
         """``{camera: fraction of its mask's pixels that are learnt occluder pixels}``."""
@@ -277,7 +282,9 @@ class Reconstructor:
         for lvl in range(t.box_levels):
             n_edge, n_full = classify_cells(cells, t.boxes[lvl], cams, self._sat, t.sat_offset, t.sat_stride, k, mv,
                                             lvl < last, self._edge[lvl], self._full[lvl],
-                                            None if self.occluders is None else self._sat_fg)
+                                            None if self.occluders is None else self._sat_fg,
+                                            self.occluders.support if self.occluders is not None
+                                            and self.abstain_support else 0)
             if n_full:
                 n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
             cells = self._edge[lvl][:n_edge]
