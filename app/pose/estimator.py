@@ -43,6 +43,8 @@ class PoseSettings:
     alpha: float = 0.5              # survival rate per layer
     gamma: int = 50                 # SHBM-APF: particles per new DoF
     importance_fraction: float = 0.2
+    lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
+    limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
     seed: int = 0
@@ -103,7 +105,7 @@ class PersonPose:
             self.filter = SHBMAPF(gamma=s.gamma, **kw)
         else:
             self.filter = APF(particles=s.particles, layers=s.layers, alpha=s.alpha, **kw)
-        self.switch = LimbSwitch(rng=self.rng) if s.method.endswith("ddm") else None
+        self.switch = LimbSwitch(rng=self.rng, criterion=s.limb_criterion) if s.method.endswith("ddm") else None
 
     def update(self, centres: np.ndarray, surface, position: np.ndarray):
         """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
@@ -134,6 +136,10 @@ class PersonPose:
         elif self.last_position is not None:
             self.filter.shift(position - self.last_position)
         if self.switch is not None:
+            if self.state is not None and self.last_position is not None and self.frames >= s.lock_frames:
+                predicted = self.state.copy()
+                predicted[:2] += position[:2] - self.last_position[:2]
+                self.switch.precheck(self.scorer, predicted)
             self.filter.frozen = self.switch.frozen()
         active = self.switch.part_mask() if self.switch is not None else None
         est = self.filter.step(self.scorer, active=active, importance=importance)

@@ -24,7 +24,7 @@ import numpy as np
 
 from app.pose.annealing import (adaptive_resample, annealing_exponent, normalised_weights, propagate,
                                 systematic_resample, weighted_mean)
-from app.pose.flesh import LIMBS, PART, PARTS
+from app.pose.flesh import LIMB_JOINTS, LIMBS, PART, PARTS
 from app.pose.likelihood import Scorer, log_likelihood
 from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, N_DOF, SIGMA0
 
@@ -201,40 +201,54 @@ class SHBMAPF(_Base):
 
 class LimbSwitch:
     """DDM-APF's lost/found limb detection (§7.4.2) with an annealed scout filter (ASPF)
-    per lost limb.
+    per lost limb unit (:data:`app.pose.flesh.LIMBS`: whole limbs and their end parts).
 
-    A tracked limb is switched off when the spread (Eq. 7.27, as a standard deviation)
-    of *all* its angles exceeds ``lost_spread`` (15 deg) and the occupancy (Eq. 6.15) of
-    its parts in the estimate falls under ``lost_occupancy`` (0.05). A lost limb's
-    scout explores its angles with broad noise; the limb is switched back on when every
-    scout angle spreads less than ``found_spread`` (5 deg) and its parts' occupancy
-    exceeds ``found_occupancy`` (0.7).
+    A tracked unit is switched off when the spread (Eq. 7.27, as a standard deviation
+    over the last layer's particles) of *all* its angles exceeds ``lost_spread`` (15
+    deg) and the occupancy (Eq. 6.15) of its parts in the estimate falls under
+    ``lost_occupancy`` (0.05). A lost unit's scout explores its angles with broad noise
+    (its own parts scored, with double occupancy against the tracked ones); the unit is
+    switched back on when every scout angle spreads less than ``found_spread`` (5 deg)
+    and its parts' occupancy exceeds ``found_occupancy`` (0.7).
     """
 
-    def __init__(self, lost_spread=15.0, lost_occupancy=0.05, found_spread=5.0, found_occupancy=0.7,
-                 scout_particles=100, scout_layers=4, scout_alpha=0.5, scout_sigma=3.0, rng=None):
+    def __init__(self, lost_spread=15.0, lost_occupancy=0.05, found_spread=5.0, found_occupancy=0.6,
+                 scout_particles=100, scout_layers=6, scout_alpha=0.5, scout_sigma=3.0, rng=None,
+                 criterion: str = "predicted", predicted_occupancy: float = 0.1):
+        if criterion not in ("thesis", "predicted"):
+            raise ValueError(f"limb criterion {criterion!r} must be thesis or predicted")
+        self.criterion, self.predicted_occupancy = criterion, predicted_occupancy
         self.lost_spread, self.lost_occupancy = math.radians(lost_spread), lost_occupancy
         self.found_spread, self.found_occupancy = math.radians(found_spread), found_occupancy
         self.scout_n, self.scout_layers, self.scout_alpha = scout_particles, scout_layers, scout_alpha
         self.scout_sigma = scout_sigma
         self.rng = rng if rng is not None else np.random.default_rng(1)
-        self.active = {limb: True for limb in LIMBS}
+        self.active = {unit: True for unit in LIMBS}
         self.scouts: dict[str, np.ndarray] = {}
         self.events: list[tuple[str, bool]] = []
+        self.last: dict[str, tuple] = {}     # unit -> (spread deg, occupancy) of the last check
+
+    def _tracked(self, unit) -> bool:
+        parent = LIMBS[unit][2]
+        return self.active[unit] and (parent is None or self.active[parent])
+
+    def _lost_roots(self):
+        """Lost units whose parent is tracked (each has the one scout of its subtree)."""
+        return [u for u in LIMBS if not self.active[u] and (LIMBS[u][2] is None or self.active[LIMBS[u][2]])]
 
     def part_mask(self) -> np.ndarray:
         mask = np.ones(len(PARTS), dtype=bool)
-        for limb, on in self.active.items():
-            if not on:
-                for p in LIMBS[limb][0]:
+        for unit in LIMBS:
+            if not self._tracked(unit):
+                for p in LIMBS[unit][0]:
                     mask[PART[p]] = False
         return mask
 
     def frozen(self) -> np.ndarray:
         f = np.zeros(N_DOF, dtype=bool)
-        for limb, on in self.active.items():
-            if not on:
-                f[_dofs(LIMBS[limb][1])] = True
+        for unit in LIMBS:
+            if not self._tracked(unit):
+                f[_dofs(LIMBS[unit][1])] = True
         return f
 
     @staticmethod
@@ -244,64 +258,102 @@ class LimbSwitch:
         size = scorer.flesh.part_size[idx]
         return float(np.sum((1.0 - s[idx, 2]) * size) / size.sum())
 
-    def update(self, scorer: Scorer, filt, estimate: np.ndarray) -> np.ndarray:
-        """After the filter's step: switch limbs, run the scouts; returns the estimate
-        with the scouts' angles for lost limbs."""
-        P, w = filt.final_particles, filt.final_weights
-        out = estimate.copy()
-        for limb, (parts, dofs) in LIMBS.items():
-            d = _dofs(dofs)
-            if self.active[limb]:
-                mean = w @ P[:, d]
-                spread = np.sqrt(w @ (P[:, d] - mean) ** 2)
-                if np.all(spread > self.lost_spread) and self._occupancy(scorer, estimate, parts) < self.lost_occupancy:
-                    self.active[limb] = False
-                    self.scouts[limb] = np.tile(estimate, (self.scout_n, 1))
-                    self.events.append((limb, False))
-        tracked = self.part_mask()
-        for limb, (parts, dofs) in LIMBS.items():
-            if self.active[limb]:
+    def precheck(self, scorer: Scorer, predicted: np.ndarray) -> None:
+        """Before the filter's step (``criterion="predicted"``, this project's variant):
+        a tracked unit whose parts stay nearly empty (occupancy < ``predicted_occupancy``)
+        at the predicted pose and at 24 poses around it (the unit's angles diffused by
+        ``scout_sigma`` times P_0, so a fast limb is not taken for a lost one) is switched off at once,
+        before a likelihood that still contains it can bend the whole body towards the
+        missing data (the thesis's post-filter test comes too late for that: the fit
+        compromises and the spread stays small)."""
+        if self.criterion != "predicted":
+            return
+        for unit, (parts, dofs, parent) in LIMBS.items():
+            if not self._tracked(unit):
                 continue
             d = _dofs(dofs)
-            S = self.scouts[limb]
-            S[:, :] = np.where(np.isin(np.arange(N_DOF), d)[None], S, out[None])
-            act = tracked.copy()
-            mine = np.zeros(len(PARTS), bool)
-            for p in parts:
-                act[PART[p]] = True
-                mine[PART[p]] = True
             sig = np.zeros(N_DOF)
             sig[d] = SIGMA0[d] * self.scout_sigma
+            near = propagate(np.tile(predicted, (24, 1)), sig, LIMITS_LO, LIMITS_HI, self.rng)
+            near[0] = predicted
+            idx = [PART[p] for p in parts]
+            s = scorer.scores(near)[:, idx, 2]
+            size = scorer.flesh.part_size[idx]
+            occ = float(np.max((1.0 - s) @ size / size.sum()))   # the best of the nearby poses
+            if occ < self.predicted_occupancy:
+                self.active[unit] = False
+                self.scouts[unit] = np.tile(predicted, (self.scout_n, 1))
+                self.events.append((unit, False))
+                self.last[unit] = (0.0, occ)
+
+    def update(self, scorer: Scorer, filt, estimate: np.ndarray) -> np.ndarray:
+        """After the filter's step: switch units off, run the scouts, switch units back
+        on; returns the estimate with the scouts' angles for lost units."""
+        P, w = filt.final_particles, filt.final_weights
+        out = estimate.copy()
+        for unit, (parts, dofs, parent) in LIMBS.items():   # whole limbs before their ends
+            if not self._tracked(unit):
+                continue
+            d = _dofs(dofs)
+            mean = w @ P[:, d]
+            spread = np.sqrt(w @ (P[:, d] - mean) ** 2)
+            occ = self._occupancy(scorer, estimate, parts)
+            self.last[unit] = (float(np.degrees(spread.min())), occ)
+            if np.all(spread > self.lost_spread) and occ < self.lost_occupancy:
+                self.active[unit] = False
+                self.scouts[unit] = np.tile(estimate, (self.scout_n, 1))
+                self.events.append((unit, False))
+        tracked = self.part_mask()
+        for unit in self._lost_roots():
+            parts, dofs, parent = LIMBS[unit]
+            d = _dofs(dofs)
+            # the scout of an end part also moves its parent's angles: a thigh that drifted
+            # while the shin was missing must be able to swing back with it
+            search = _dofs(LIMBS[parent][1]) if parent is not None else d
+            scored = LIMBS[parent][0] if parent is not None else parts
+            S = self.scouts.get(unit)
+            if S is None:
+                S = np.tile(estimate, (self.scout_n, 1))
+            keep = np.zeros(N_DOF, bool)
+            keep[search] = True
+            S = np.where(keep[None], S, out[None])
+            act = tracked.copy()
+            mine = np.zeros(len(PARTS), bool)
+            for p in scored:
+                act[PART[p]] = mine[PART[p]] = True
+            sig = np.zeros(N_DOF)
+            sig[search] = SIGMA0[search] * self.scout_sigma
             for m in range(self.scout_layers):
                 S = propagate(S, sig * math.sqrt(self.scout_alpha ** m), LIMITS_LO, LIMITS_HI, self.rng)
-                scores = scorer.scores(S, act)
-                lw = log_likelihood(scores, scorer.flesh, mine)   # the limb's own parts only
+                lw = log_likelihood(scorer.scores(S, act), scorer.flesh, mine)   # the unit's own parts only
                 wS = normalised_weights(lw, annealing_exponent(lw, self.scout_alpha))
                 if m < self.scout_layers - 1:
                     S = S[systematic_resample(wS, self.rng)]
-            mean = wS @ S[:, d]
-            spread = np.sqrt(wS @ (S[:, d] - mean) ** 2)
+            mean = wS @ S[:, search]
             cand = out.copy()
-            cand[d] = mean
-            self.scouts[limb] = S[systematic_resample(wS, self.rng)]
-            out[d] = mean
-            if np.all(spread < self.found_spread) and self._occupancy(scorer, cand, parts) > self.found_occupancy:
-                self.active[limb] = True
-                self.events.append((limb, True))
-                filt.particles = _with(filt.particles, d, mean)
+            cand[search] = mean
+            spread = np.sqrt(wS @ (S[:, d] - cand[d]) ** 2)
+            occ = self._occupancy(scorer, cand, parts)
+            out[d] = cand[d]
+            self.last[unit] = (float(np.degrees(spread.max())), occ)
+            self.scouts[unit] = S[systematic_resample(wS, self.rng)]
+            if np.all(spread < self.found_spread) and occ > self.found_occupancy:
+                for u in LIMBS:    # the unit and its ends are tracked again
+                    if u == unit or LIMBS[u][2] == unit:
+                        self.active[u] = True
+                self.events.append((unit, True))
+                out[search] = cand[search]
+                filt.particles = _with(filt.particles, search, mean)
         return out
 
     def joint_flags(self) -> np.ndarray:
-        """The contract's active flags (15,): a lost arm drops elbow and wrist, a lost leg
-        knee and ankle."""
+        """The contract's active flags (15,): joints of lost units are inactive."""
         from app.messages import JOINTS
         flags = np.ones(len(JOINTS), dtype=bool)
-        for limb, on in self.active.items():
-            if not on:
-                side = limb[0]
-                names = ("elbow", "wrist") if limb.endswith("arm") else ("knee", "ankle")
-                for n in names:
-                    flags[JOINTS.index(f"{side}_{n}")] = False
+        for unit in LIMBS:
+            if not self._tracked(unit):
+                for n in LIMB_JOINTS[unit]:
+                    flags[JOINTS.index(n)] = False
         return flags
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from app.pose.model import SEGMENT
 
-__all__ = ["PARTS", "PART", "Flesh", "build_flesh", "LIMBS"]
+__all__ = ["PARTS", "PART", "Flesh", "build_flesh", "LIMBS", "LIMB_JOINTS"]
 
 #: ``(part, segment, [cones])``; a cone is ``("z", z0, z1, (ax0, ay0), (ax1, ay1), (cx, cy))``
 #: (elliptic, along local z) or ``("ab", a, b, ra, rb)`` (round, between two points).
@@ -46,13 +46,23 @@ _PARTS = (
 )
 PARTS = tuple(p[0] for p in _PARTS)
 PART = {n: i for i, n in enumerate(PARTS)}
-#: The limbs of DDM-APF (§7.4): ``limb -> (parts, state DoFs)``.
+#: The limb units of DDM-APF (§7.4, Fig. 7.11: each limb missing, or with its upper
+#: part only, or whole): ``unit -> (parts, state DoFs, parent unit)``. A whole limb
+#: lost takes its end with it; an end part (forearm, shin) can be lost alone.
 LIMBS = {
-    "l_arm": (("l_upper_arm", "l_forearm"), ("l_sh_flex", "l_sh_abd", "l_sh_rot", "l_elbow")),
-    "r_arm": (("r_upper_arm", "r_forearm"), ("r_sh_flex", "r_sh_abd", "r_sh_rot", "r_elbow")),
-    "l_leg": (("l_thigh", "l_shin"), ("l_hip_flex", "l_hip_abd", "l_hip_rot", "l_knee")),
-    "r_leg": (("r_thigh", "r_shin"), ("r_hip_flex", "r_hip_abd", "r_hip_rot", "r_knee")),
+    "l_arm": (("l_upper_arm", "l_forearm"), ("l_sh_flex", "l_sh_abd", "l_sh_rot", "l_elbow"), None),
+    "r_arm": (("r_upper_arm", "r_forearm"), ("r_sh_flex", "r_sh_abd", "r_sh_rot", "r_elbow"), None),
+    "l_leg": (("l_thigh", "l_shin"), ("l_hip_flex", "l_hip_abd", "l_hip_rot", "l_knee"), None),
+    "r_leg": (("r_thigh", "r_shin"), ("r_hip_flex", "r_hip_abd", "r_hip_rot", "r_knee"), None),
+    "l_forearm": (("l_forearm",), ("l_elbow",), "l_arm"),
+    "r_forearm": (("r_forearm",), ("r_elbow",), "r_arm"),
+    "l_shin": (("l_shin",), ("l_knee",), "l_leg"),
+    "r_shin": (("r_shin",), ("r_knee",), "r_leg"),
 }
+#: Contract joints a lost unit drops from ``active``.
+LIMB_JOINTS = {"l_arm": ("l_elbow", "l_wrist"), "r_arm": ("r_elbow", "r_wrist"), "l_leg": ("l_knee", "l_ankle"),
+               "r_leg": ("r_knee", "r_ankle"), "l_forearm": ("l_wrist",), "r_forearm": ("r_wrist",),
+               "l_shin": ("l_ankle",), "r_shin": ("r_ankle",)}
 
 
 def _inside(cones, p, H) -> np.ndarray:
