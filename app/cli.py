@@ -21,6 +21,7 @@ VERBS = {
     "bench": ("app.commands.bench", "throughput profiling against the real-time target"),
     "calibrate": ("app.commands.calibrate", "check, import and export camera calibrations"),
     "export": ("app.commands.export", "write a run's people as BVH, C3D, TRC or CSV for other tools"),
+    "view": ("app.commands.view", "replay a finished run in the viewer (meshcat in a browser)"),
 }
 
 

@@ -130,6 +130,7 @@ class _Bridge(ZMQWebSocketBridge):
     def __init__(self, bind: str, port: int, zmq_url: str, latest_only=()):
         self._bind = bind
         self.latest_only = frozenset(latest_only)
+        self.after_scene: dict[tuple, bytes] = {}
         self.http_server = None
         try:
             super().__init__(zmq_url=zmq_url, host=bind, port=port)
@@ -153,6 +154,27 @@ class _Bridge(ZMQWebSocketBridge):
 
         app.listen = listen
         return app
+
+    def handle_zmq(self, frames):
+        """meshcat's commands, except two kept here and sent to a browser after the whole
+        scene (meshcat's server would send an animation before the objects it animates,
+        and neither forwards nor keeps ``set_control``, a control in the page's panel):
+        the newest animation, then the controls in the order they came, one per name."""
+        kind = frames[0]
+        if kind in (b"set_animation", b"set_control") and len(frames) == 3:
+            name = umsgpack.unpackb(frames[2]).get("name", "") if kind == b"set_control" else ""
+            self.after_scene[(kind, name)] = frames[2]
+            if kind == b"set_animation":   # the animation first
+                self.after_scene = dict(sorted(self.after_scene.items(), key=lambda kv: kv[0][0] != kind))
+            self.forward_to_websockets(frames)
+            self.zmq_socket.send(b"ok")
+            return
+        super().handle_zmq(frames)
+
+    def send_scene(self, websocket):
+        super().send_scene(websocket)
+        for data in self.after_scene.values():
+            websocket.write_message(data, binary=True)
 
     def forward_to_websockets(self, frames):
         _, path, data = frames

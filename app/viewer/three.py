@@ -19,8 +19,8 @@ import numpy as np
 import umsgpack
 
 __all__ = [
-    "set_object", "set_transform", "set_property", "delete", "points", "line_segments", "line_strip",
-    "triangles", "sprite", "text_image", "hex_colour",
+    "set_object", "set_transform", "set_property", "delete", "set_animation", "track", "set_control",
+    "points", "line_segments", "line_strip", "triangles", "sprite", "text_image", "hex_colour",
 ]
 
 _EXT = {np.dtype(np.uint8): ("Uint8Array", 0x12), np.dtype(np.uint32): ("Uint32Array", 0x16),
@@ -46,6 +46,31 @@ def set_property(path: str, key: str, value) -> dict:
 
 def delete(path: str) -> dict:
     return {"type": "delete", "path": path}
+
+
+def set_animation(path: str, tracks: list[dict], fps: float, play: bool = True, repetitions: int = 1) -> dict:
+    """A three.js AnimationClip on the object at ``path`` (meshcat's Animations panel: play,
+    pause, reset, a time slider). ``tracks``: :func:`track` dicts, key times in frames."""
+    return {"type": "set_animation", "path": "", "options": {"play": bool(play), "repetitions": int(repetitions)},
+            "animations": [{"path": path, "clip": {"fps": float(fps), "name": "default", "tracks": tracks}}]}
+
+
+def track(target: str, prop: str, kind: str, times, values) -> dict:
+    """One keyframe track: ``target`` is a descendant's name (or "" for the object itself),
+    ``prop`` e.g. ``visible`` / ``position``, ``kind`` three.js's (``boolean``, ``vector3``)."""
+    name = f"{target}.{prop}" if target else f".{prop}"
+    return {"name": name, "type": kind,
+            "keys": [{"time": float(t), "value": v} for t, v in zip(times, values)]}
+
+
+def set_control(name: str, callback: str, value=None, lo=None, hi=None, step=None) -> dict:
+    """A control in the page's panel (meshcat's ``set_control``): a button running the
+    JavaScript function ``callback`` or, with ``value``, a slider calling it with the new
+    value. The page evaluates ``callback`` when the control is made."""
+    cmd = {"type": "set_control", "name": name, "callback": callback}
+    if value is not None:
+        cmd.update(value=value, min=lo, max=hi, step=step)
+    return cmd
 
 
 # -- pieces ----------------------------------------------------------------------------

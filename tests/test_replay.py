@@ -1,0 +1,167 @@
+"""``smartroom view RESULTS``: a finished run replayed in the viewer's page from its files
+(tracks, poses, voxels.bin, the room's calibration), checked in headless Chromium."""
+import json
+import re
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from app.messages import JOINTS, Voxels
+from app.viewer import three
+from app.viewer.geometry import track_colour
+from app.viewer.replay import REPLAY, frame_name, load_run, replay_commands
+from app.viewer.scene import BACKGROUND, ROOT
+from tests.conftest import ROOT as REPO
+from tests.conftest import smartroom
+from tests.test_viewer import _box, _chromium, _near, _screenshot
+
+FPS = 25.0
+VOXEL = 0.04
+
+
+@pytest.fixture(scope="session")
+def run_results(tmp_path_factory):
+    """A results folder as a run with the recorder's voxels would leave it, made from the
+    simulator's ground truth (meeting3, 3 s): tracks at the true centroids, poses at the
+    true joints, voxels.bin of the true bodies at 4 cm, the room's calibration."""
+    from calibration.loader import save_calibration
+    from app.results import VoxelWriter
+    from app.simulation.occupancy import grid_dims, true_occupancy
+    from app.simulation.simulator import Simulator
+
+    sim = Simulator("meeting3", fps=FPS, seconds=3.0, width=160, height=120)
+    base = tmp_path_factory.mktemp("replay")
+    rec = base / "rec"
+    rec.mkdir()
+    save_calibration(sim.calibration, rec / "calibration.yaml")
+    out = base / "out"
+    out.mkdir()
+    (out / "layout.yaml").write_text(yaml.safe_dump({"run": {"recording": str(rec), "fps": FPS}}))
+    lo = np.asarray(sim.calibration.room_min, float)
+    dims = grid_dims(sim.calibration.room_min, sim.calibration.room_max, VOXEL)
+    voxels = VoxelWriter(out / "voxels.bin")
+    with open(out / "tracks.jsonl", "w") as ft, open(out / "poses.jsonl", "w") as fp:
+        for i in range(sim.frame_count()):
+            people = sim.people(i)
+            gt = sim.groundtruth(i, people)
+            ft.write(json.dumps({"frame": i, "t": gt["t"], "tracks": [
+                {"id": p["id"], "position": p["centroid"]} for p in gt["people"]]}) + "\n")
+            fp.write(json.dumps({"frame": i, "t": gt["t"], "poses": [
+                {"track": p["id"], "joints": p["joints"], "active": {j: True for j in JOINTS}}
+                for p in gt["people"]]}) + "\n")
+            idx = true_occupancy(sim.body_record(i, people), lo, VOXEL, dims)
+            voxels.write(Voxels(frame=i, stamp=0.0, t=gt["t"], voxel_size=VOXEL, origin=lo.tolist(),
+                                dims=[int(d) for d in dims], indices=idx.astype(np.int32),
+                                colours=np.full((len(idx), 3), 200, np.uint8), surface=np.zeros(0, bool)))
+    voxels.close()
+    return out
+
+
+def test_replay_has_one_group_per_frame_and_an_animation_that_shows_each_at_its_time(run_results):
+    data = load_run(run_results)
+    assert data.frames == list(range(75)) and len(data.voxels) == 75 and data.calibration is not None
+    scene, cmds = replay_commands(data)
+    (anim,) = [c for c in cmds if c["type"] == "set_animation"]
+    clip = anim["animations"][0]["clip"]
+    assert anim["animations"][0]["path"] == ROOT and clip["fps"] == FPS
+    tracks = {t["name"]: t for t in clip["tracks"]}
+    for f in (0, 30, 74):
+        keys = tracks[f"{frame_name(f)}.visible"]["keys"]
+        shown = [k["time"] for k in keys if k["value"]]
+        assert shown == [f]                                          # visible from its own frame ...
+        hidden_after = [k["time"] for k in keys if not k["value"] and k["time"] > f]
+        assert hidden_after == ([f + 1] if f < 74 else [])           # ... to the next one
+        objs = {c["path"] for c in cmds if c["type"] == "set_object" and c["path"].startswith(f"{REPLAY}/{frame_name(f)}/")}
+        assert f"{REPLAY}/{frame_name(f)}/voxels" in objs
+        assert sum("/poses/" in p for p in objs) == 2 * len(data.poses[f][0])
+    # each track's ellipsoid moves through its centroids
+    tid = int(data.tracks[10][0][0])
+    pos = tracks[f"t{tid}.position"]["keys"]
+    k10 = next(k for k in pos if k["time"] == 10)
+    assert np.allclose(k10["value"], data.tracks[10][1][0])
+    names = {c["name"] for c in cmds if c["type"] == "set_control"}
+    assert names == {"frame", "step back", "step forward"}
+
+
+def test_view_command_one_line_errors(tmp_path):
+    r = smartroom("view", tmp_path / "nothing")
+    assert r.returncode == 2 and "results folder not found" in r.stderr and "Traceback" not in r.stderr
+    (tmp_path / "empty").mkdir()
+    r = smartroom("view", tmp_path / "empty")
+    assert r.returncode == 2 and "nothing to replay" in r.stderr
+
+
+def _view(results, *args):
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "view", str(results), *map(str, args)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    deadline = time.monotonic() + 60
+    line = ""
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        m = re.search(r"view: open (http://127\.0\.0\.1:\d+/static/)", line)
+        if m:
+            return proc, m.group(1)
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise AssertionError(f"no URL from smartroom view: {line}{proc.stderr.read()}")
+
+
+def _stop(proc):
+    proc.send_signal(2)   # Ctrl-C
+    try:
+        return proc.wait(20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def _dump_dom(chromium, url, profile, budget_ms=2500):
+    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
+           "--enable-unsafe-swiftshader", "--no-first-run", f"--user-data-dir={profile}",
+           f"--virtual-time-budget={budget_ms}", "--dump-dom", url]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=90, start_new_session=True).stdout
+
+
+@pytest.mark.browser
+def test_replay_in_headless_chromium_shows_the_chosen_frame(run_results, tmp_path):
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("needs headless Chromium (Debian package: chromium)")
+    data = load_run(run_results)
+    scene, _ = replay_commands(data)
+    view = scene.view
+    shots = {}
+    for frame in (5, 60):
+        proc, url = _view(run_results, "--frame", frame)
+        try:
+            shots[frame] = _screenshot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / "profile")
+            if frame == 5:
+                dom = _dump_dom(chromium, url, tmp_path / "profile")
+        finally:
+            assert _stop(proc) == 0
+    # the page has the replay's controls: meshcat's play / pause / time slider and ours
+    for label in ("play", "pause", "time", "frame", "step back", "step forward"):
+        assert f">{label}<" in dom, label
+    background = np.round(np.asarray(BACKGROUND) * 255)
+    for frame, img in shots.items():
+        assert _near(img, background, 3).mean() > 0.4
+        other = 60 if frame == 5 else 5
+        for tid, joints in zip(data.poses[frame][0], data.poses[frame][1]):
+            rgb = np.round(track_colour(int(tid)) * 255)
+            here = _box(view.project(joints, 800, 600), 6, img.shape)
+            ids_other = list(data.poses[other][0])
+            there = _box(view.project(data.poses[other][1][ids_other.index(tid)], 800, 600), 6, img.shape) \
+                if tid in ids_other else np.zeros(img.shape[:2], bool)
+            hits = _near(img, rgb, 20)
+            assert hits[here].sum() > 30, (frame, tid, hits[here].sum())     # its skeleton is drawn where it was
+            assert hits[there & ~here].sum() < 0.2 * max(1, hits[here].sum()), (frame, tid)  # not where it was later/earlier
+        # the voxels (grey 200) of this frame's bodies
+        centres = data.voxels[frame][0]
+        body = _box(view.project(centres, 800, 600), 4, img.shape)
+        assert _near(img, (200, 200, 200), 25)[body].sum() > 100
