@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -20,7 +21,8 @@ from app.errors import InputError
 from app.files import read_jsonl
 from calibration import Calibration, load_calibration, save_calibration
 
-__all__ = ["RecordingError", "Recording", "RecordingWriter", "VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS"]
+__all__ = ["RecordingError", "Recording", "RecordingWriter", "SourceInfo", "VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS",
+           "recording_problem", "size_mismatches", "fps_mismatches"]
 
 VIDEO_EXTENSIONS = (".mp4", ".avi")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
@@ -81,10 +83,71 @@ class _ImageSource:
         pass
 
 
-class Recording:
-    """A recording folder, validated on opening."""
+@dataclass(frozen=True)
+class SourceInfo:
+    """One camera's source in a recording: ``shown`` is its path inside the folder."""
 
-    def __init__(self, path):
+    camera: str
+    shown: str
+    kind: str  # "video" or "frames"
+    size: tuple[int, int]
+    fps: float  # 0 when unknown (image folders)
+    count: int
+
+
+#: relative difference between a video's fps and the calibration's fps still accepted
+#: (29.97 against 30 passes, 25 against 30 or 50 does not)
+FPS_TOLERANCE = 0.01
+
+
+def size_mismatches(calibration: Calibration, sources: dict) -> list[str]:
+    """One phrase per camera whose frames differ in size from its calibration."""
+    out = []
+    for name, info in sources.items():
+        c = calibration.camera(name)
+        if tuple(info.size) != (c.width, c.height):
+            out.append(f"{info.shown}: frame size {info.size[0]}x{info.size[1]} does not match calibration "
+                       f"{c.width}x{c.height} of camera {name}")
+    return out
+
+
+def fps_mismatches(calibration: Calibration, sources: dict) -> list[str]:
+    """One phrase per video whose frame rate differs from the calibration's ``fps``."""
+    out = []
+    for info in sources.values():
+        if info.kind == "video" and info.fps > 0 and \
+                abs(info.fps - calibration.fps) > FPS_TOLERANCE * calibration.fps:
+            out.append(f"{info.shown} is {info.fps:g} fps")
+    return out
+
+
+def recording_problem(path: Path, calibration: Calibration, sources: dict) -> str | None:
+    """The one-line error for a recording whose videos do not fit its calibration (every
+    mis-sized camera and every video at another frame rate named, with the fix), or None."""
+    sizes = size_mismatches(calibration, sources)
+    if sizes:
+        fix = (f"fix: smartroom calibrate fit --recording {path} --rescale (the video is the calibrated image "
+               "scaled) or --crop (the video is a window of it)")
+        return "; ".join(sizes) + f" ({len(sizes)} of {len(sources)} cameras); {fix}"
+    rates = fps_mismatches(calibration, sources)
+    if rates:
+        found = sorted({round(i.fps, 3) for i in sources.values() if i.kind == "video" and i.fps > 0})
+        return (f"{path / 'calibration.yaml'}: fps {calibration.fps:g}, but " + ", ".join(rates) +
+                f"; fix: set fps: {found[0]:g} in calibration.yaml" + (" (the videos also differ among themselves)"
+                                                                        if len(found) > 1 else ""))
+    counts = {name: info.count for name, info in sources.items()}
+    first = next(iter(counts))
+    for name, n in counts.items():
+        if n != counts[first]:
+            return f"{path / sources[name].shown}: {n} frames, but {first} has {counts[first]}"
+    return None
+
+
+class Recording:
+    """A recording folder, validated on opening (``check=False`` only opens it, for tools
+    that report what does not fit, such as ``smartroom calibrate check --recording``)."""
+
+    def __init__(self, path, check: bool = True):
         self.path = Path(path)
         if not self.path.is_dir():
             raise RecordingError(f"{self.path}: recording folder not found")
@@ -93,12 +156,12 @@ class Recording:
         self._sources = {}
         for cam in self.calibration.cameras:
             self._sources[cam.name] = self._find_source(cam.name)
-        counts = {name: self._count(name) for name in self._sources}
+        self.sources = {name: self.inspect(name) for name in self._sources}
+        self.problem = recording_problem(self.path, self.calibration, self.sources)
+        if self.problem and check:
+            raise RecordingError(self.problem)
+        counts = {name: info.count for name, info in self.sources.items()}
         self.frame_count = min(counts.values())
-        first = next(iter(counts))
-        for name, n in counts.items():
-            if n != counts[first]:
-                raise RecordingError(f"{self.path / self._sources[name][1]}: {n} frames, but {first} has {counts[first]}")
 
     def _find_source(self, cam: str):
         for ext in VIDEO_EXTENSIONS:
@@ -116,15 +179,12 @@ class Recording:
             return _VideoSource(self.path / rel, cam, self.path)
         return _ImageSource(self.path / rel, cam, self.path)
 
-    def _count(self, cam: str) -> int:
-        """Frame count of a camera's source, whose frame size is checked on the way."""
+    def inspect(self, cam: str) -> "SourceInfo":
+        """What a camera's video (or image folder) holds: frame size, fps, frame count."""
         src = self._open(cam)
         try:
-            c = self.calibration.camera(cam)
-            if src.size != (c.width, c.height):
-                raise RecordingError(f"{src.shown}: frame size {src.size[0]}x{src.size[1]} does not match "
-                                     f"calibration {c.width}x{c.height} of camera {cam}")
-            return src.count
+            kind = "video" if isinstance(src, _VideoSource) else "frames"
+            return SourceInfo(cam, src.shown, kind, src.size, src.fps, src.count)
         finally:
             src.close()
 
@@ -132,24 +192,37 @@ class Recording:
     def cameras(self) -> list[str]:
         return self.calibration.names
 
-    def frames(self, cameras=None, start: int = 0, stop: int | None = None):
+    def frames(self, cameras=None, start: int = 0, stop: int | None = None, skip_bad: bool = False,
+               lost: dict | None = None):
         """Yield ``(index, {camera: BGR image})`` from ``start`` up to ``stop`` (exclusive).
 
-        Raises :class:`RecordingError` naming the file when a frame has the wrong size.
+        Raises :class:`RecordingError` naming the file when a frame has the wrong size,
+        or naming the file and frame when a frame the video announces cannot be decoded
+        (a video corrupt in its middle). With ``skip_bad`` such a view is left out of its
+        frame instead (the frame carries the other cameras) and counted in ``lost``
+        (``{camera: frames lost}``); a frame no camera could give is skipped whole.
         """
         names = list(cameras) if cameras else self.cameras
         stop = self.frame_count if stop is None else min(stop, self.frame_count)
         sources = {n: self._open(n) for n in names}
+        lost = {} if lost is None else lost
         try:
             for i in range(start, stop):
                 images = {}
                 for n, src in sources.items():
                     img = src.read(i)
                     if img is None:
-                        return  # a video shorter than its announced count ends the stream
+                        if not skip_bad:
+                            raise RecordingError(f"{src.shown}: frame {i} of {self.frame_count} cannot be decoded "
+                                                 "(the file is damaged there; --set grabber.skip_bad_frames=true "
+                                                 "goes on without it)")
+                        lost[n] = lost.get(n, 0) + 1
+                        src.pos = -1   # seek on the next read
+                        continue
                     self.check_image(n, img, src.shown)
                     images[n] = img
-                yield i, images
+                if images:
+                    yield i, images
         finally:
             for src in sources.values():
                 src.close()

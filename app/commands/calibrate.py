@@ -1,82 +1,427 @@
-"""``smartroom calibrate``: check a calibration and import other formats.
+"""``smartroom calibrate``: make, import, check and fit camera calibrations.
 
-- ``smartroom calibrate check FILE``: validate and summarise (cameras, centres, fields of view).
-- ``smartroom calibrate import-opencv --out FILE --fps F --room X0,Y0,Z0,X1,Y1,Z1 CAM=FILE.yml ...``:
-  build ``calibration.yaml`` from OpenCV FileStorage files holding ``camera_matrix``,
-  ``distortion_coefficients``, ``rvec`` (or ``R``), ``tvec`` and ``image_width/height``.
+- ``check FILE`` / ``check --recording DIR [--out DIR]``: validate and summarise; with a
+  recording, compare each camera with its video (size, fps), draw the room box, world axes
+  and floor grid on a frame of every camera (``check-<cam>.png`` and ``check.png``, a
+  contact sheet), and print per-camera figures.
+- ``intrinsics --images GLOB | --video FILE --board SPEC``: K and distortion from views of
+  a chessboard or ChArUco board (``cv2.calibrateCamera``), RMS reprojection error.
+- ``extrinsics --intrinsics FILE... (--floor CAM=IMAGE... --board SPEC | --points FILE)``:
+  each camera's pose from a board on the floor (the world: origin at the board, z up) or
+  from known 3D points; ``--moved CAM=GLOB`` adds views of the board elsewhere for a joint
+  refinement of all cameras.
+- ``import FILE... [--format F] --out calibration.yaml``: from OpenCV, Qualisys QTM,
+  Pose2Sim/Anipose/FreeMoCap/Caliscope TOML, EasyMocap, Vicon, HumanEva-I.
+- ``export FILE --format opencv|toml --out PATH``.
+- ``fit --recording DIR --rescale|--crop|--turn DEG``: fit the intrinsics to the videos.
+- ``import-opencv CAM=FILE... --out FILE --fps F --room=...``: the first importer, kept.
+
+Room bounds (``--room=xmin,ymin,zmin,xmax,ymax,zmax``, negative values fine) are estimated
+from the cameras' common view of the floor when not given, and always printed.
 """
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
+
+from calibration.room import ROOM_PATTERN
+
+#: accept ``--room -3,-1.5,0,3,2,2.5``: argparse takes a leading ``-`` for an option unless
+#: the string looks like a negative number to the parser that reads it
+_NEGATIVE = re.compile(r"^-\d+$|^-\d*\.\d+$|" + ROOM_PATTERN.pattern)
+
+
+def _room_option(p) -> None:
+    p._negative_number_matcher = _NEGATIVE  # the leaf parser reads the values (Python 3.11+)
+    p.add_argument("--room", metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="analysed volume in metres (negative values fine); estimated from the cameras when omitted")
 
 
 def add_arguments(p) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     sub.required = True
-    c = sub.add_parser("check", help="validate a calibration.yaml and summarise it")
-    c.add_argument("file", help="calibration.yaml or a recording folder")
-    i = sub.add_parser("import-opencv", help="build calibration.yaml from OpenCV FileStorage files")
-    i.add_argument("cameras", nargs="+", metavar="CAM=FILE", help="camera name and its OpenCV .yml/.xml file")
-    i.add_argument("--out", required=True, help="calibration.yaml to write")
-    i.add_argument("--fps", type=float, required=True, help="frame rate of the cameras")
-    i.add_argument("--room", required=True, help="analysed volume: xmin,ymin,zmin,xmax,ymax,zmax in metres")
+    c = sub.add_parser("check", help="validate a calibration; with --recording, draw it on the videos")
+    c.add_argument("file", nargs="?", help="calibration.yaml or a recording folder")
+    c.add_argument("--recording", help="recording folder: compare the calibration with its videos and draw it")
+    c.add_argument("--out", help="folder for the check images (default: the recording folder's check/)")
+    c.add_argument("--frame", type=int, default=0, help="frame drawn on (default 0)")
+    c.add_argument("--grid", type=float, default=0.5, help="floor grid step in metres (default 0.5)")
+
+    i = sub.add_parser("intrinsics", help="K and distortion of one camera from board images or a video")
+    src = i.add_mutually_exclusive_group(required=True)
+    src.add_argument("--images", help="glob of board images, quoted: 'cam0/*.png'")
+    src.add_argument("--video", help="a video of the board (frames sampled)")
+    i.add_argument("--board", required=True, help="chessboard:9x6:0.025 or charuco:7x5:0.04:0.03[:DICT_4X4_50]")
+    i.add_argument("--every", type=int, default=0, help="with --video: use every N-th frame (default: ~60 spread frames)")
+    i.add_argument("--max-frames", type=int, default=60, help="with --video: frames sampled when --every is not given")
+    i.add_argument("--name", default="cam0", help="camera name (default cam0)")
+    i.add_argument("--fix-k3", action="store_true", help="keep k3 = 0 (few or central views)")
+    i.add_argument("--out", help="OpenCV YAML file to write (camera_matrix, distortion_coefficients, size)")
+
+    e = sub.add_parser("extrinsics", help="camera poses from a board on the floor or known 3D points")
+    e.add_argument("--intrinsics", nargs="+", required=True, metavar="FILE",
+                   help="calibration.yaml, or CAM=FILE OpenCV files from 'calibrate intrinsics'")
+    e.add_argument("--board", help="the board (as for intrinsics)")
+    e.add_argument("--floor", nargs="+", metavar="CAM=IMAGE", default=[],
+                   help="each camera's image of the board lying on the floor (defines the world)")
+    e.add_argument("--moved", nargs="+", metavar="CAM=GLOB", default=[],
+                   help="images of the board elsewhere, the k-th file of every camera taken at once: joint refinement")
+    e.add_argument("--points", help="YAML: world: {NAME: [x,y,z]}, pixels: {CAM: {NAME: [u,v]}} (instead of a board)")
+    e.add_argument("--out", required=True, help="calibration.yaml to write")
+    e.add_argument("--fps", type=float, default=25.0, help="frame rate of the recordings (default 25)")
+    _room_option(e)
+
+    m = sub.add_parser("import", help="calibration.yaml from another tool's calibration")
+    m.add_argument("files", nargs="+", metavar="FILE", help="the file(s); CAM=FILE names a one-camera file's camera")
+    m.add_argument("--format", help="opencv, toml, qualisys, easymocap, vicon, humaneva (guessed when omitted)")
+    m.add_argument("--out", required=True, help="calibration.yaml to write")
+    m.add_argument("--fps", type=float, help="frame rate (default: the file's, else 25)")
+    m.add_argument("--units", default="auto", help="length unit of translations: m, cm, mm or auto (default)")
+    m.add_argument("--size", metavar="WxH", help="image size, for formats that do not carry it")
+    m.add_argument("--binning", type=int, default=1, help="Qualisys: sensor binning factor (default 1)")
+    m.add_argument("--view-rotation", choices=("apply", "ignore"), default="apply",
+                   help="Qualisys: apply each camera's viewrotation (default) or keep the sensor's orientation")
+    m.add_argument("--rename", nargs="+", default=[], metavar="OLD=NEW", help="rename cameras (to match videos/NEW.mp4)")
+    _room_option(m)
+
+    x = sub.add_parser("export", help="write a calibration.yaml in another format")
+    x.add_argument("file", help="calibration.yaml or a recording folder")
+    x.add_argument("--format", required=True, choices=("opencv", "toml"))
+    x.add_argument("--out", required=True, help="toml: the file; opencv: a folder (one <cam>.yml per camera)")
+
+    f = sub.add_parser("fit", help="fit the intrinsics to the recording's video sizes")
+    f.add_argument("--recording", required=True)
+    how = f.add_mutually_exclusive_group(required=True)
+    how.add_argument("--rescale", action="store_true", help="the videos are the calibrated images scaled")
+    how.add_argument("--crop", action="store_true", help="the videos are a window of the calibrated images")
+    how.add_argument("--turn", type=int, metavar="DEG", help="the videos are the images turned clockwise (90, 180, 270)")
+    f.add_argument("--anchor", choices=("topleft", "centre"), default="topleft", help="with --crop (default topleft)")
+    f.add_argument("--out", help="calibration to write (default: the recording's, the old one kept as .orig)")
+
+    o = sub.add_parser("import-opencv", help="build calibration.yaml from OpenCV FileStorage files")
+    o.add_argument("cameras", nargs="+", metavar="CAM=FILE", help="camera name and its OpenCV .yml/.xml file")
+    o.add_argument("--out", required=True, help="calibration.yaml to write")
+    o.add_argument("--fps", type=float, required=True, help="frame rate of the cameras")
+    o.add_argument("--room", required=True, help="analysed volume: xmin,ymin,zmin,xmax,ymax,zmax in metres")
+    o._negative_number_matcher = _NEGATIVE
 
 
-def _check(args) -> int:
-    from calibration import load_calibration
+# -- helpers ----------------------------------------------------------------------------
 
-    calib = load_calibration(args.file)
+def _size(text):
+    from app.simulation.command import parse_size
+
+    return parse_size(text) if text else None
+
+
+def _pairs(items, what):
+    from app.errors import InputError
+
+    out = []
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or not value:
+            raise InputError(f"{what} {item!r}: expected CAM=VALUE")
+        out.append((name, value))
+    return out
+
+
+def _room(text, cameras):
+    """The room from ``--room`` or estimated; printed either way."""
+    from calibration.room import estimate_room, format_room, parse_room
+
+    if text:
+        lo, hi = parse_room(text)
+        print(f"room (given): {format_room(lo, hi)}")
+    else:
+        lo, hi = estimate_room(cameras)
+        print(f"room (estimated from the floor area that {min(2, len(cameras))} or more cameras see): "
+              f"{format_room(lo, hi)}")
+    return lo, hi
+
+
+def _save(cameras, fps, lo, hi, out):
+    from calibration import Calibration, load_calibration, save_calibration
+
+    calib = Calibration(float(fps), lo, hi, tuple(cameras), str(out))
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(calib, out)
+    return load_calibration(out)  # what was written is valid
+
+
+def _summary(calib) -> None:
     print(f"{calib.path}: {len(calib.cameras)} cameras at {calib.fps:g} fps, room "
           f"{calib.room_min.tolist()} .. {calib.room_max.tolist()} m")
     for c in calib.cameras:
         hfov = 2 * math.degrees(math.atan(c.width / (2 * c.K[0, 0])))
         print(f"  {c.name}: {c.width}x{c.height}, hfov {hfov:.0f} deg, centre "
               f"[{', '.join(f'{v:.2f}' for v in c.centre)}], distortion {'yes' if c.has_distortion else 'none'}")
+
+
+# -- actions ----------------------------------------------------------------------------
+
+def _check(args) -> int:
+    from app.errors import InputError
+    from calibration import load_calibration
+
+    if args.recording:
+        return _check_recording(args)
+    if not args.file:
+        raise InputError("calibrate check: give a calibration.yaml (or a recording folder), or --recording DIR")
+    _summary(load_calibration(args.file))
     return 0
 
 
-def _import_opencv(args) -> int:
+def _check_recording(args) -> int:
+    import cv2
+    import numpy as np
+
+    from app.recording import Recording, fps_mismatches, size_mismatches
+    from calibration.overlay import contact_sheet, draw_calibration, floor_coverage
+    from calibration.transform import rescaled
+
+    rec = Recording(args.recording, check=False)
+    calib = rec.calibration
+    _summary(calib)
+    out = Path(args.out) if args.out else rec.path / "check"
+    out.mkdir(parents=True, exist_ok=True)
+    sheet = []
+    frame = min(max(args.frame, 0), max(rec.frame_count - 1, 0))
+    print(f"{'camera':<10} {'calibration':>12} {'video':>12} {'size':>6} {'fps':>12} {'height m':>9} "
+          f"{'floor seen':>10}")
+    for cam in calib.cameras:
+        info = rec.sources[cam.name]
+        src = rec._open(cam.name)
+        try:
+            img = src.read(frame)
+        finally:
+            src.close()
+        size_ok = tuple(info.size) == (cam.width, cam.height)
+        fps_txt = f"{info.fps:g}" if info.fps > 0 else "(images)"
+        fps_ok = info.fps <= 0 or abs(info.fps - calib.fps) <= 0.01 * calib.fps
+        drawn_cam = cam if size_ok else rescaled(cam, *info.size)
+        lines = [f"calib {cam.width}x{cam.height} video {info.size[0]}x{info.size[1]}"
+                 + ("" if size_ok else " MISMATCH (drawn rescaled)"),
+                 f"fps calib {calib.fps:g} video {fps_txt}" + ("" if fps_ok else " MISMATCH"),
+                 f"centre height {cam.centre[2]:.2f} m"]
+        drawn = draw_calibration(drawn_cam, img, calib.room_min, calib.room_max, args.grid, lines)
+        cv2.imwrite(str(out / f"check-{cam.name}.png"), drawn)
+        sheet.append(drawn)
+        cover = floor_coverage(cam, calib.room_min, calib.room_max)
+        print(f"{cam.name:<10} {f'{cam.width}x{cam.height}':>12} {f'{info.size[0]}x{info.size[1]}':>12} "
+              f"{'ok' if size_ok else 'WRONG':>6} {fps_txt + ('' if fps_ok else ' WRONG'):>12} "
+              f"{cam.centre[2]:>9.2f} {100 * cover:>9.0f}%")
+    cv2.imwrite(str(out / "check.png"), contact_sheet(sheet))
+    print(f"drawn on frame {frame}: {out / 'check.png'} and check-<camera>.png (room box yellow, floor grid "
+          f"{args.grid:g} m, axes x red y green z blue, 1 m)")
+    problems = size_mismatches(calib, rec.sources) + fps_mismatches(calib, rec.sources)
+    if rec.problem:
+        print(f"problem: {rec.problem}")
+        return 1
+    return 0 if not problems else 1
+
+
+def _intrinsics(args) -> int:
+    import numpy as np
+
+    from calibration import Camera
+    from calibration.boards import parse_board
+    from calibration.formats import write_opencv
+    from calibration.intrinsics import calibrate_intrinsics, frames_from_video, images_from_glob
+
+    board = parse_board(args.board)
+    if args.images:
+        views, source = images_from_glob(args.images), args.images
+    else:
+        views, source = frames_from_video(args.video, args.every, args.max_frames), args.video
+    r = calibrate_intrinsics(views, board, fix_k3=args.fix_k3, source=source)
+    K = r.K
+    print(f"{args.name}: {r.width}x{r.height}, board found in {r.views_used} of {r.views_total} views")
+    print(f"  fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px; "
+          f"dist {' '.join(f'{v:.5f}' for v in r.dist)}")
+    print(f"  RMS reprojection error {r.rms:.3f} px (worst view {max(r.per_view_rms):.3f} px)")
+    if r.warning:
+        print(f"  warning: {r.warning}")
+    if args.out:
+        write_opencv(Camera(args.name, r.width, r.height, K, r.dist, np.eye(3), np.zeros(3)), args.out)
+        print(f"wrote {args.out}")
+    return 0
+
+
+def _load_intrinsics(items):
+    from calibration import load_calibration
+    from calibration.formats import read_opencv
+
+    if len(items) == 1 and "=" not in items[0]:
+        return list(load_calibration(items[0]).cameras)
+    cams = []
+    for name, path in _pairs(items, "--intrinsics"):
+        cams += read_opencv(path, name=name, units="m").cameras
+    return cams
+
+
+def _extrinsics(args) -> int:
+    import glob
+
     import cv2
     import numpy as np
 
     from app.errors import InputError
-    from calibration import Calibration, Camera, save_calibration
+    from calibration.boards import detect, floor_points, parse_board
+    from calibration.extrinsics import refine_jointly, solve_pose
+    from calibration.files import read_points
 
-    try:
-        room = [float(v) for v in args.room.split(",")]
-    except ValueError:
-        room = []
-    if len(room) != 6:
-        raise InputError("--room must be xmin,ymin,zmin,xmax,ymax,zmax")
+    cams = {c.name: c for c in _load_intrinsics(args.intrinsics)}
+    results = {}
+    if args.points:
+        world, pixels = read_points(args.points)
+        for name, seen in pixels.items():
+            if name not in cams:
+                raise InputError(f"{args.points}: pixels: unknown camera {name} (have {', '.join(cams)})")
+            names = [n for n in seen if n in world]
+            results[name] = solve_pose(cams[name], [world[n] for n in names], [seen[n] for n in names],
+                                       f"{args.points}: camera {name}")
+    else:
+        if not args.board or not args.floor:
+            raise InputError("extrinsics: give --board and --floor CAM=IMAGE for each camera, or --points FILE")
+        board = parse_board(args.board)
+        observations = []
+        order = []
+        for name, path in _pairs(args.floor, "--floor"):
+            if name not in cams:
+                raise InputError(f"--floor {name}: unknown camera (have {', '.join(cams)})")
+            img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                raise InputError(f"{path}: cannot be read as an image")
+            d = detect(board, img)
+            if d is None:
+                raise InputError(f"{path}: the board {args.board} is not found")
+            results[name] = solve_pose(cams[name], floor_points(board, d.ids), d.pixels, f"{path}")
+            order.append(name)
+            observations.append((len(order) - 1, 0, d.ids, d.pixels))
+        if args.moved:
+            for name, pattern in _pairs(args.moved, "--moved"):
+                if name not in results:
+                    raise InputError(f"--moved {name}: the camera has no --floor image")
+                for k, path in enumerate(sorted(glob.glob(pattern)), start=1):
+                    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+                    d = detect(board, img) if img is not None else None
+                    if d is not None:
+                        observations.append((order.index(name), k, d.ids, d.pixels))
+            before = {n: results[n].rms for n in order}
+            refined = refine_jointly([results[n].camera for n in order], observations, floor_points(board))
+            for n, r in zip(order, refined):
+                results[n] = r
+            print("joint refinement over "
+                  f"{len({v for _, v, _, _ in observations})} board placements: RMS "
+                  + ", ".join(f"{n} {before[n]:.3f} -> {results[n].rms:.3f} px" for n in order))
+    missing = [n for n in cams if n not in results]
+    if missing:
+        print(f"warning: no pose for {', '.join(missing)} (left out of {args.out})")
+    for n, r in results.items():
+        c = r.camera
+        print(f"  {n}: centre [{', '.join(f'{v:.3f}' for v in c.centre)}] m, RMS {r.rms:.3f} px over {r.points} points"
+              + ("  (above 1 px: check the points)" if r.rms > 1.0 else ""))
+    out_cams = [results[n].camera for n in cams if n in results]
+    lo, hi = _room(args.room, out_cams)
+    calib = _save(out_cams, args.fps, lo, hi, args.out)
+    print(f"wrote {calib.path} with {len(out_cams)} cameras")
+    return 0
+
+
+def _import(args) -> int:
+    from app.errors import InputError
+    from calibration import Camera
+    from calibration.formats import read_cameras
+
+    fmt, got = read_cameras(args.files, args.format, units=args.units, size=_size(args.size),
+                            binning=args.binning, view_rotation=args.view_rotation)
+    renames = dict(_pairs(args.rename, "--rename"))
     cams = []
-    for item in args.cameras:
-        if "=" not in item:
-            raise InputError(f"{item}: expected CAM=FILE")
-        name, path = item.split("=", 1)
-        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-        if not fs.isOpened():
-            raise InputError(f"{path}: cannot be opened as an OpenCV FileStorage file")
+    for c in got.cameras:
+        name = renames.pop(c.name, c.name)
+        cams.append(Camera(name, c.width, c.height, c.K, c.dist, c.R, c.t))
+    if renames:
+        raise InputError(f"--rename: no camera {', '.join(renames)} in {args.files[0]}")
+    for note in got.notes:
+        print(f"note: {note}")
+    fps = args.fps or got.fps or 25.0
+    if not args.fps and not got.fps:
+        print("note: fps 25 assumed (the file has none): give --fps, `smartroom calibrate check --recording` compares")
+    lo, hi = _room(args.room, cams)
+    calib = _save(cams, fps, lo, hi, args.out)
+    print(f"imported {len(cams)} cameras from {', '.join(args.files)} ({fmt}) into {calib.path}")
+    _summary(calib)
+    return 0
 
-        def mat(key, _fs=fs):
-            node = _fs.getNode(key)
-            return None if node.empty() else node.mat()
 
-        K, dist = mat("camera_matrix"), mat("distortion_coefficients")
-        R, rvec, tvec = mat("R"), mat("rvec"), mat("tvec")
-        width, height = fs.getNode("image_width").real(), fs.getNode("image_height").real()
-        if K is None or tvec is None or (R is None and rvec is None) or not width or not height:
-            raise InputError(f"{path}: needs camera_matrix, tvec, R or rvec, image_width and image_height")
-        if R is None:
-            R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))
-        cams.append(Camera(name=name, width=int(width), height=int(height), K=K,
-                           dist=np.zeros(5) if dist is None else dist.ravel()[:5], R=R, t=np.ravel(tvec)))
-    calib = Calibration(args.fps, np.array(room[:3]), np.array(room[3:]), tuple(cams), args.out)
-    save_calibration(calib, args.out)
+def _export(args) -> int:
     from calibration import load_calibration
-    load_calibration(args.out)  # validate what was written
+    from calibration.formats import write_opencv, write_toml
+
+    calib = load_calibration(args.file)
+    if args.format == "toml":
+        write_toml(list(calib.cameras), args.out)
+        print(f"wrote {args.out} ({len(calib.cameras)} cameras, aniposelib/Pose2Sim TOML, metres)")
+    else:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        for c in calib.cameras:
+            write_opencv(c, out / f"{c.name}.yml")
+        print(f"wrote {len(calib.cameras)} OpenCV files into {out}/")
+    return 0
+
+
+def _fit(args) -> int:
+    import shutil
+
+    from app.errors import InputError
+    from app.recording import Recording
+    from calibration.transform import fit_to_size, turned
+
+    rec = Recording(args.recording, check=False)
+    calib = rec.calibration
+    cams = []
+    for c in calib.cameras:
+        w, h = rec.sources[c.name].size
+        if args.turn is not None:
+            if args.turn % 90:
+                raise InputError(f"--turn {args.turn}: must be 90, 180 or 270")
+            t = turned(c, args.turn)
+            print(f"{c.name}: turned {args.turn} degrees clockwise, {c.width}x{c.height} -> {t.width}x{t.height}")
+            c = t
+        mode = "rescale" if args.rescale else "crop" if args.crop else None
+        if mode and (c.width, c.height) != (w, h):
+            c, said = fit_to_size(c, w, h, mode, args.anchor)
+            print(said)
+        elif (c.width, c.height) != (w, h):
+            print(f"warning: {c.name}: still {c.width}x{c.height} against a {w}x{h} video")
+        else:
+            print(f"{c.name}: {w}x{h}, fits")
+        cams.append(c)
+    out = Path(args.out) if args.out else rec.path / "calibration.yaml"
+    if not args.out:
+        shutil.copy2(rec.path / "calibration.yaml", rec.path / "calibration.yaml.orig")
+        print(f"kept the old calibration as {rec.path / 'calibration.yaml.orig'}")
+    saved = _save(cams, calib.fps, calib.room_min, calib.room_max, out)
+    print(f"wrote {saved.path}")
+    return 0
+
+
+def _import_opencv(args) -> int:
+    from calibration.formats import read_opencv
+    from calibration.room import parse_room
+
+    lo, hi = parse_room(args.room)
+    cams = []
+    for name, path in _pairs(args.cameras, "camera"):
+        cams += read_opencv(path, name=name, units="m").cameras
+    _save(cams, args.fps, lo, hi, args.out)
     print(f"smartroom: wrote {args.out} with {len(cams)} cameras")
     return 0
 
 
 def main(args) -> int:
-    return {"check": _check, "import-opencv": _import_opencv}[args.action](args)
+    return {"check": _check, "intrinsics": _intrinsics, "extrinsics": _extrinsics, "import": _import,
+            "export": _export, "fit": _fit, "import-opencv": _import_opencv}[args.action](args)

@@ -1,0 +1,75 @@
+"""The same camera seen through another image: turned by quarter turns, rescaled, or
+cropped (for videos whose size differs from the calibration's).
+
+Pixel convention as in :mod:`calibration.camera`: the origin at the top-left pixel's
+centre. A clockwise quarter turn maps pixel ``(u, v)`` of a ``W x H`` image to
+``(H - 1 - v, u)`` of the ``H x W`` image; the camera axes turn with it
+(``x' = -y, y' = x``), so ``fx' = fy, cx' = H - 1 - cy, fy' = fx, cy' = cx`` and the
+tangential terms become ``p1' = p2, p2' = -p1`` (the radial ones do not change).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calibration.camera import Camera
+
+__all__ = ["turned", "cropped", "rescaled", "fit_to_size"]
+
+_QUARTER = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _turn_once(c: Camera) -> Camera:
+    K = c.K
+    K2 = np.array([[K[1, 1], 0.0, c.height - 1 - K[1, 2]], [0.0, K[0, 0], K[0, 2]], [0.0, 0.0, 1.0]])
+    k1, k2, p1, p2, k3 = c.dist
+    return Camera(c.name, c.height, c.width, K2, np.array([k1, k2, p2, -p1, k3]), _QUARTER @ c.R, _QUARTER @ c.t)
+
+
+def turned(camera: Camera, degrees_clockwise: int) -> Camera:
+    """The camera whose image is this one's turned clockwise by 0, 90, 180 or 270 degrees."""
+    d = int(degrees_clockwise) % 360
+    if d % 90:
+        raise ValueError(f"rotation {degrees_clockwise} is not a multiple of 90 degrees")
+    c = camera
+    for _ in range(d // 90):
+        c = _turn_once(c)
+    return c
+
+
+def cropped(camera: Camera, left: int, top: int, width: int, height: int) -> Camera:
+    """The camera seeing the ``width x height`` window whose top-left pixel is (left, top)
+    (negative offsets or a larger window mean padding)."""
+    K = camera.K.copy()
+    K[0, 2] -= left
+    K[1, 2] -= top
+    return Camera(camera.name, int(width), int(height), K, camera.dist.copy(), camera.R.copy(), camera.t.copy())
+
+
+def rescaled(camera: Camera, width: int, height: int) -> Camera:
+    """The camera imaging the same field at ``width x height`` (see :meth:`Camera.scaled`)."""
+    return camera.scaled(width, height)
+
+
+def fit_to_size(camera: Camera, width: int, height: int, mode: str, anchor: str = "topleft") -> tuple[Camera, str]:
+    """The camera fitted to a ``width x height`` video, and a sentence saying what was done.
+
+    ``mode``: ``rescale`` (the video is the calibrated image scaled: intrinsics scaled about
+    the image corner), ``crop`` (the video is a window of the calibrated image, or the image
+    padded: the principal point moves by the window's offset; ``anchor`` ``topleft`` as
+    encoders do when they drop the 8 padding rows of a 1088-row image, or ``centre``)."""
+    w0, h0 = camera.width, camera.height
+    if (w0, h0) == (width, height):
+        return camera, f"{camera.name}: already {width}x{height}, unchanged"
+    if mode == "rescale":
+        sx, sy = width / w0, height / h0
+        note = "" if abs(sx / sy - 1) < 0.01 else f" (aspect ratio changes by {100 * (sx / sy - 1):+.1f} %: is it a crop?)"
+        return rescaled(camera, width, height), (f"{camera.name}: rescaled {w0}x{h0} -> {width}x{height} "
+                                                 f"(x{sx:.4f}, x{sy:.4f}){note}")
+    if mode == "crop":
+        if anchor == "centre":
+            left, top = (w0 - width) // 2, (h0 - height) // 2
+        else:
+            left, top = 0, 0
+        return cropped(camera, left, top, width, height), (f"{camera.name}: cropped {w0}x{h0} -> {width}x{height} "
+                                                          f"at offset ({left}, {top}), principal point moved")
+    raise ValueError(f"unknown fit mode {mode!r}")
