@@ -20,13 +20,14 @@ from .carving import (MAX_CAMERAS, carve_cells, carve_cells_occluded, classify_c
                       mask_votes, occluded_votes)
 from .colouring import COLOURINGS, VoxelColourer
 from .floor import FloorBlobFilter
+from .fused import chi2_thresholds, classify_cells_fused
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
 from .occlusion import OccluderModel
 from .projection import ProjectionTable
 
 __all__ = ["Reconstructor", "METHODS", "OCCLUSIONS"]
 
-METHODS = ("hierarchical", "flat")
+METHODS = ("hierarchical", "flat", "fused")
 OCCLUSIONS = ("none", "learnt")
 
 
@@ -42,7 +43,11 @@ class Reconstructor:
     colour_sizes : ``{camera: (width, height)}`` of the colour images (default: the mask sizes).
     tolerance : ``k``, how many of the cameras that see a voxel may call it background (§2.2.4).
     min_views : the least number of cameras that must call a voxel foreground.
-    method : ``"hierarchical"`` (coarse-to-fine, default) or ``"flat"`` (every voxel).
+    method : ``"hierarchical"`` (coarse-to-fine, default), ``"flat"`` (every voxel) or
+        ``"fused"``: Caillette et al.'s fused segmentation and reconstruction
+        (:mod:`.fused`, Eqs. 5-6); its "masks" are per-pixel squared Mahalanobis
+        distance maps (float32, :class:`app.segmentation.YuvBackground`).
+    alpha : the confidence level of the fused method's chi-square thresholds (0.99).
     colouring : ``"visibility"`` (depth buffers, default), ``"raymarch"`` (the thesis's
         line-of-sight reference), ``"naive"`` (mean over all cameras, no surface) or
         ``"none"`` (no colours, no surface).
@@ -75,13 +80,15 @@ class Reconstructor:
                  threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
                  occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
                  occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
-                 abstain_support: bool = True):
+                 abstain_support: bool = True, alpha: float = 0.99):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
             raise ValueError(f"colouring must be one of {', '.join(COLOURINGS)}, got {colouring!r}")
         if occlusion not in OCCLUSIONS:
             raise ValueError(f"occlusion must be one of {', '.join(OCCLUSIONS)}, got {occlusion!r}")
+        if occlusion != "none" and method == "fused":
+            raise ValueError("learnt occluders work with the hierarchical and flat methods, not with fused")
         if tolerance < 0 or min_views < 1:
             raise ValueError("tolerance must be >= 0 and min_views >= 1")
         if len(calibration.cameras) > MAX_CAMERAS:
@@ -119,6 +126,14 @@ class Reconstructor:
         t = self.table
         self._votes = np.zeros(t.mask_total + 1, dtype=np.uint8)     # + the 0 sentinel
         self._sat = np.zeros(t.sat_total, dtype=np.int32)
+        if method == "fused":
+            if not 0.5 <= alpha < 1.0:
+                raise ValueError(f"alpha must be in [0.5, 1), got {alpha}")
+            self.alpha = float(alpha)
+            self._dsat = np.zeros(t.sat_total, dtype=np.float64)
+            largest = max(w * h for w, h in t.mask_sizes)
+            self.thresholds = chi2_thresholds(alpha, int(np.ceil(np.sqrt(largest))) + 1)
+            self._fused_masks: dict = {}
         self.occluders = None
         if occlusion == "learnt":
             self.occluders = OccluderModel(t.mask_total, occlusion_evidence, occlusion_ratio, occlusion_support,
@@ -184,8 +199,19 @@ class Reconstructor:
                 continue
             if m.shape != (h, w):
                 raise ValueError(f"camera {name}: mask must be {h}x{w}, got {'x'.join(map(str, m.shape))}")
-            m01 = np.ascontiguousarray(m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).view(np.uint8))
             sat = self._sat[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
+            if self.method == "fused":   # m is the distance map d_M (Caillette Eq. 6)
+                d = np.asarray(m, dtype=np.float32)
+                fg = d > self.thresholds[1]
+                self._fused_masks[name] = fg
+                m01 = fg.view(np.uint8)
+                mask_votes(m01.reshape(-1), votes.reshape(-1))
+                dsat = self._dsat[t.sat_offset[c]: t.sat_offset[c] + (w + 1) * (h + 1)].reshape(h + 1, w + 1)
+                cv2.integral(d, sum=dsat, sdepth=cv2.CV_64F)
+                cv2.integral(1 - m01, sum=sat, sdepth=cv2.CV_32S)   # background-like pixels (d_M <= T_1)
+                cams.append(c)
+                continue
+            m01 = np.ascontiguousarray(m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).view(np.uint8))
             if occ is None:
                 mask_votes(m01.reshape(-1), votes.reshape(-1))
                 if self.method == "hierarchical":
@@ -279,6 +305,15 @@ class Reconstructor:
         n = 0
         cells = self._root_cells
         last = t.box_levels - 1
+        if self.method == "fused":
+            for lvl in range(t.box_levels):
+                n_edge, n_full = classify_cells_fused(cells, t.boxes[lvl], cams, self._dsat, self._sat, t.sat_offset,
+                                                      t.sat_stride, self.thresholds, k, mv, lvl < last,
+                                                      self._edge[lvl], self._full[lvl])
+                if n_full:
+                    n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
+                cells = self._edge[lvl][:n_edge]
+            return keys[:self._carve_voxels(cells, 3 * (L - last), k, mv, n, False)]
         for lvl in range(t.box_levels):
             n_edge, n_full = classify_cells(cells, t.boxes[lvl], cams, self._sat, t.sat_offset, t.sat_stride, k, mv,
                                             lvl < last, self._edge[lvl], self._full[lvl],
@@ -325,6 +360,8 @@ class Reconstructor:
             timings["floor"] = (time.perf_counter() - t1) * 1e3
         images = images or {}
         imgs = [images.get(n) for n in self.names]
+        if self.method == "fused":
+            masks = self._fused_masks
         colours, surface, tc = self.colourer.colour(indices, imgs, [masks.get(n) for n in self.names])
         timings.update(tc)
         timings["total"] = (time.perf_counter() - t0) * 1e3
@@ -337,7 +374,7 @@ class Reconstructor:
         for cam in self.mask_cameras:
             m = np.zeros((cam.height, cam.width), dtype=bool)
             m[cam.height // 2 - 1: cam.height // 2 + 2, cam.width // 2 - 1: cam.width // 2 + 2] = True
-            masks[cam.name] = m
+            masks[cam.name] = m if self.method != "fused" else m.astype(np.float32) * 1000.0
         images = {c.name: np.zeros((c.height, c.width, 3), np.uint8) for c in self.colour_cameras}
         self.reconstruct(masks, images)
         # images decoded from bus messages are read-only views: numba compiles those apart
