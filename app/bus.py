@@ -93,6 +93,9 @@ class Keys:
     def voxels(self) -> str:
         return f"{self.root}/voxels"
 
+    def blobs(self) -> str:
+        return f"{self.root}/blobs"
+
     def tracks(self) -> str:
         return f"{self.root}/tracks"
 
@@ -117,6 +120,11 @@ class Keys:
         if stage in per_camera:
             return per_camera[stage](camera)
         return f"{self.root}/{stage}"
+
+    def relative(self, key) -> str:
+        """A key without the ``smartroom/<room>/`` prefix (for counts and log lines)."""
+        key = str(key)
+        return key[len(self.root) + 1:] if key.startswith(self.root + "/") else key
 
     @staticmethod
     def last(key: str) -> str:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 
 import yaml
@@ -103,7 +103,8 @@ def default_layout_path() -> Path:
 
 
 def _check_params(kind_cls, params: dict, where: str) -> dict:
-    """Merge ``params`` over the kind's defaults, rejecting unknown names and wrong types."""
+    """Merge ``params`` over the kind's defaults, rejecting unknown names, wrong types,
+    numbers outside the kind's ``RANGES`` and words outside its ``CHOICES``."""
     defaults = kind_cls.DEFAULTS
     merged = copy.deepcopy(defaults)
     for key, value in (params or {}).items():
@@ -111,6 +112,14 @@ def _check_params(kind_cls, params: dict, where: str) -> dict:
             known = ", ".join(sorted(defaults)) or "none"
             raise LayoutError(f"{where}: unknown parameter {key!r} (known: {known})")
         merged[key] = _coerce(value, defaults[key], f"{where}: parameter {key}")
+    for key, (lo, hi) in getattr(kind_cls, "RANGES", {}).items():
+        v = merged.get(key)
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and not lo <= v <= hi:
+            raise LayoutError(f"{where}: parameter {key} = {v} is outside {lo} .. {hi}")
+    for key, choices in getattr(kind_cls, "CHOICES", {}).items():
+        v = merged.get(key)
+        if v is not None and v not in choices:
+            raise LayoutError(f"{where}: parameter {key} = {v!r} is not one of {', '.join(map(str, choices))}")
     return merged
 
 
@@ -156,7 +165,7 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
         raise LayoutError(f"{path}: expected a mapping with room, bus and workers")
     unknown = set(data) - {"room", "bus", "workers", "run"}
     if unknown:
-        raise LayoutError(f"{path}: unknown section {sorted(unknown)[0]!r} (known: room, bus, workers)")
+        raise LayoutError(f"{path}: unknown section {str(sorted(map(str, unknown))[0])!r} (known: room, bus, workers)")
     room = data.get("room", "smartroom")
     if not isinstance(room, str) or not room or any(c in room for c in "/*$?# "):
         raise LayoutError(f"{path}: room must be a plain word, got {room!r}")
@@ -180,8 +189,11 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
                               "or module:Class)")
         try:
             cls = worker_class(kind)
-        except (ImportError, AttributeError) as exc:
+        except (ImportError, AttributeError, ValueError) as exc:
             raise LayoutError(f"{path}: worker {name}: cannot load kind {kind!r} ({exc})") from None
+        from workers.base import Worker
+        if not (isinstance(cls, type) and issubclass(cls, Worker)):
+            raise LayoutError(f"{path}: worker {name}: kind {kind!r} is not a worker (a subclass of workers.base.Worker)")
         if name in names:
             raise LayoutError(f"{path}: worker name {name} appears more than once")
         names.add(name)
@@ -191,8 +203,27 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
         merged = _check_params(cls, params, f"{path}: worker {name}")
         workers.append(WorkerSpec(name=name, kind=kind, params=merged, host=str(e.get("host", "local")),
                                   restart=bool(e.get("restart", True))))
-    run = RunSpec(**(data.get("run") or {})) if isinstance(data.get("run"), dict) else RunSpec()
-    return Layout(room=room, bus=bus, workers=workers, run=run, path=path)
+    if not any(not worker_class(w.kind).CONSUMES for w in workers):
+        raise LayoutError(f"{path}: no source: the layout needs a worker that produces frames (kind: grabber)")
+    return Layout(room=room, bus=bus, workers=workers, run=_run_spec(data.get("run"), path), path=path)
+
+
+def _run_spec(data, path: str) -> RunSpec:
+    """The ``run`` section the launcher writes (checked like the rest: any file may be edited)."""
+    if data is None:
+        return RunSpec()
+    if not isinstance(data, dict):
+        raise LayoutError(f"{path}: run must be a mapping")
+    known = {f.name: f for f in fields(RunSpec)}
+    for key, value in data.items():
+        if key not in known:
+            raise LayoutError(f"{path}: run: unknown key {str(key)!r} (known: {', '.join(known)})")
+        default = known[key].default if known[key].default is not MISSING else known[key].default_factory()
+        want = {"recording": str, "calibration": str, "out": str, "fps": (int, float), "frames": int}.get(
+            key, type(default))
+        if value is not None and (not isinstance(value, want) or isinstance(value, bool) != isinstance(default, bool)):
+            raise LayoutError(f"{path}: run: {key} has the wrong type ({value!r})")
+    return RunSpec(**data)
 
 
 def load_layout(path=None) -> Layout:

@@ -1,44 +1,75 @@
 """Start a layout's workers as OS processes, watch them, restart the ones that die,
-and end the run cleanly.
+and end the run cleanly and honestly.
 
 The launcher opens the hub zenoh session every worker connects to, writes the
 resolved layout next to the results (``<out>/layout.yaml``), starts each local worker
 as ``python -m app.cli worker NAME --layout <out>/layout.yaml``, shows progress from
-the workers' stats, and waits:
+the workers' stats, keeps ``<out>/stats.json`` up to date, and waits:
 
-- a worker exiting 0 has finished its stream;
-- exit 2 is bad input (its one-line reason is in ``<out>/logs/<name>.error``): the
-  run cannot go on, the other workers are stopped so their files are completed, and
-  the launcher exits 2 with that reason;
-- any other exit is a crash: the worker is restarted with exponential backoff
-  (logged), at most ``MAX_RESTARTS`` times.
+- exit 0: the worker's input ended and it sent its end of stream;
+- exit 2: bad input (its one-line reason is in ``<out>/logs/<name>.error``): the run
+  cannot go on; the other workers are stopped and the launcher exits 2 with that reason;
+- anything else (a crash, SIGKILL, SIGTERM from outside): the worker is restarted
+  after a back-off (0.25 s doubling per recent crash, at most 8 s). A stage crashing
+  :attr:`RestartPolicy.storm` times within :attr:`RestartPolicy.window_s` is a storm:
+  the run is stopped and reported incomplete. A stage that crashes once an hour
+  runs forever (the budget refills). Its counters carry on (``<out>/state/``).
 
-Ctrl-C or SIGTERM stops the sources first, so the end of stream flows through every
-stage and the result files are completed; a second Ctrl-C stops everything at once.
+Stopping: the first Ctrl-C / SIGTERM asks the sources to end their input (SIGINT),
+so the end of stream flows through every stage and every file is completed; workers
+still running ``STOP_GRACE_S`` later get SIGTERM (no end of stream: their files stay
+``.partial``), and SIGKILL ``KILL_GRACE_S`` after that. A second Ctrl-C goes straight
+to SIGTERM. Workers exit by themselves when the launcher dies (they watch its pid).
+
+``stats.json`` says what happened: per stage the frames expected, processed, dropped
+and lost in transit, restarts; ``complete`` with the ``reasons`` when it is false
+(a stage gave up, a worker failed, the disk filled, bad input). The exit code is 0
+only for a complete run.
 """
 from __future__ import annotations
 
+import dataclasses
+import errno
+import json
 import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from app.bus import BusConfig, Keys, decode_sample, free_port, open_session
 from app.config import Layout
-from app.messages import MessageError, Stats
+from app.files import write_json
+from app.messages import EndOfStream, MessageError, Stats
+from app.stats import summarise
 
-__all__ = ["Launcher", "ERROR_DIR"]
+__all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
 
-MAX_RESTARTS = 5
 DRAIN_TIMEOUT_S = 60.0   # after the sources end, how long without any progress before stopping all
-STOP_GRACE_S = 15.0      # after Ctrl-C, how long the end of stream may take before SIGTERM
-KILL_GRACE_S = 5.0
+STOP_GRACE_S = 15.0      # after a stop request, how long the end of stream may take before SIGTERM
+KILL_GRACE_S = 5.0       # after SIGTERM, how long before SIGKILL
+STATS_PERIOD_S = 1.0
+RESERVE_BYTES = 1 << 20  # kept free for the final stats.json when the disk fills
 ERROR_DIR = "logs"
 LAUNCHED_ENV = "SMARTROOM_LAUNCHED"   # set for workers the launcher starts
+
+
+@dataclass
+class RestartPolicy:
+    """When to restart a crashed worker: back-off doubling with the crashes of the last
+    ``window_s`` seconds; ``storm`` crashes within that window stop the run."""
+
+    window_s: float = 30.0
+    storm: int = 5
+    first_delay_s: float = 0.25
+    max_delay_s: float = 8.0
+
+    def delay(self, recent: int) -> float:
+        return min(self.max_delay_s, self.first_delay_s * 2.0 ** max(0, recent - 1))
 
 
 @dataclass
@@ -47,9 +78,11 @@ class _Proc:
     source: bool
     popen: subprocess.Popen | None = None
     restarts: int = 0
+    crashes: deque = field(default_factory=deque)
     next_start: float = 0.0
     rc: int | None = None
     done: bool = False
+    ended: bool = False          # exited 0: its input ended
     failures: list = field(default_factory=list)
 
 
@@ -60,26 +93,35 @@ def _hub_bus(bus: BusConfig) -> BusConfig:
         if ep.endswith(":0"):
             ep = ep[:-1] + str(free_port())
         listen.append(ep)
-    return BusConfig(listen=listen, connect=list(bus.connect), multicast=bus.multicast, shm=bus.shm)
+    return dataclasses.replace(bus, listen=listen)
 
 
 def _connect_endpoints(listen: list[str]) -> list[str]:
     return [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in listen]
 
 
+def _exit_text(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f"killed by {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return {143: "terminated (SIGTERM)", 1: "crashed"}.get(rc, f"exit {rc}")
+
+
 class Launcher:
-    def __init__(self, layout: Layout, verbose: bool = False, progress=None):
+    def __init__(self, layout: Layout, verbose: bool = False, progress=None, policy: RestartPolicy | None = None):
         from workers import worker_class
 
         self.layout = layout.copy()
         self.verbose = verbose
+        self.policy = policy or RestartPolicy()
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / ERROR_DIR).mkdir(exist_ok=True)
         hub = _hub_bus(self.layout.bus)
         self.hub_bus = hub
-        self.layout.bus = BusConfig(listen=hub.listen, connect=_connect_endpoints(hub.listen),
-                                    multicast=hub.multicast, shm=hub.shm)
+        self.layout.bus = dataclasses.replace(hub, connect=_connect_endpoints(hub.listen))
         self.layout_path = self.out / "layout.yaml"
         self.layout.save(self.layout_path)
         self.procs: list[_Proc] = []
@@ -90,16 +132,27 @@ class Launcher:
             self.procs.append(_Proc(name=w.name, source=not cls.CONSUMES))
         self.progress = progress
         self.stats: dict[str, Stats] = {}
-        self._stop_requests = 0
-        self._stop_time = None
+        self.eos: dict[str, EndOfStream] = {}
+        self.reasons: list[str] = []
+        self.input_error: str | None = None
+        self.stopped_by_user = False
+        self._stop_level = 0        # 0 running, 1 sources asked to end, 2 SIGTERM sent, 3 SIGKILL sent
+        self._stop_time: float | None = None
         self._lock = threading.Lock()
+        self._last_stats_write = 0.0
+        self._reserve = self.out / ".reserve"
 
     # -- processes ----------------------------------------------------------------
     def _spawn(self, p: _Proc) -> None:
+        from workers.base import ENDED_ENV, LAUNCHER_PID_ENV
+
         cmd = [sys.executable, "-m", "app.cli", "worker", p.name, "--layout", str(self.layout_path)]
         if self.verbose:
             cmd.append("--verbose")
-        env = dict(os.environ, PYTHONUNBUFFERED="1", **{LAUNCHED_ENV: "1"})
+        ended = [{"worker": q.name, "frames": e.frames, "first": e.first, "fps": e.fps}
+                 for q in self.procs if q.ended and (e := self.eos.get(q.name)) is not None]
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **{LAUNCHED_ENV: "1", LAUNCHER_PID_ENV: str(os.getpid()),
+                                                        ENDED_ENV: json.dumps(ended)})
         p.popen = subprocess.Popen(cmd, env=env, start_new_session=True)
         p.rc = None
 
@@ -110,23 +163,38 @@ class Launcher:
             except ProcessLookupError:
                 pass
 
-    def request_stop(self) -> None:
-        """First call: end the sources (the stream ends everywhere). Later: stop all."""
+    def request_stop(self, hard: bool = False, user: bool = True) -> None:
+        """First call: the sources end their input (the stream ends everywhere); a second
+        call, or ``hard``: every worker is terminated."""
         with self._lock:
-            self._stop_requests += 1
-            first = self._stop_requests == 1
-            self._stop_time = self._stop_time or time.monotonic()
+            self.stopped_by_user = self.stopped_by_user or user
+            level = 2 if hard or self._stop_level >= 1 else 1
+            if level <= self._stop_level:
+                return
+            self._stop_level = level
+            self._stop_time = time.monotonic()
         for p in self.procs:
-            if p.source or not first:
+            if level == 1 and p.source:
+                self._signal(p, signal.SIGINT)
+            elif level == 2:
                 self._signal(p, signal.SIGTERM)
 
-    def _on_stats(self, sample) -> None:
+    def _on_control(self, sample) -> None:
         try:
             msg = decode_sample(sample)
+            msg.validate()
         except MessageError:
             return
-        if isinstance(msg, Stats):
-            self.stats[msg.worker] = msg
+        name = Keys.last(sample.key_expr)
+        if getattr(msg, "worker", None) != name:
+            return
+        if isinstance(msg, EndOfStream):
+            self.eos[name] = msg
+        elif isinstance(msg, Stats):
+            old = self.stats.get(name)
+            if old is not None and old.final and not msg.final and old.figures.get("pid") == msg.figures.get("pid"):
+                return
+            self.stats[name] = msg
             if self.progress is not None:
                 self.progress.update(self.stats)
 
@@ -134,73 +202,115 @@ class Launcher:
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
         session = open_session(self.hub_bus)
-        sub = session.declare_subscriber(Keys(self.layout.room).stats(), self._on_stats)
+        keys = Keys(self.layout.room)
+        subs = [session.declare_subscriber(keys.stats(), self._on_control),
+                session.declare_subscriber(keys.eos(), self._on_control)]
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}
+        self._make_reserve()
         try:
             for p in self.procs:
                 self._spawn(p)
-            return self._wait()
+            self._wait()
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
             self._terminate_all()
-            sub.undeclare()
+            time.sleep(0.1)   # the last final stats
+            for sub in subs:
+                sub.undeclare()
             session.close()
             if self.progress is not None:
                 self.progress.close()
+            self._write_stats(final=True)
+        if self.input_error:
+            from app.errors import InputError
+            raise InputError(self.input_error)
+        return 0 if self.complete else 1
 
-    def _wait(self) -> int:
-        input_error = None
+    def _crashed(self, p: _Proc, rc: int, now: float) -> None:
+        p.failures.append({"time": round(time.time(), 3), "exit": rc})
+        p.crashes.append(now)
+        while p.crashes and now - p.crashes[0] > self.policy.window_s:
+            p.crashes.popleft()
+        recent = len(p.crashes)
+        if recent >= self.policy.storm:
+            p.done = True
+            reason = (f"worker {p.name} crashed {recent} times within {self.policy.window_s:.0f} s "
+                      f"(last: {_exit_text(rc)}); restart storm stopped")
+            self.reasons.append(reason)
+            print(f"smartroom: {reason}; stopping the run", file=sys.stderr)
+            self.request_stop(hard=True, user=False)
+            return
+        delay = self.policy.delay(recent)
+        p.restarts += 1
+        p.next_start = now + delay
+        p.popen = None
+        print(f"smartroom: worker {p.name} died ({_exit_text(rc)}); restarting in {delay:.2g} s "
+              f"(restart {p.restarts}; {recent} in the last {self.policy.window_s:.0f} s)", file=sys.stderr)
+
+    def _wait(self) -> None:
         last_progress = time.monotonic()
         last_frames = -1
         while True:
             now = time.monotonic()
             for p in self.procs:
-                if p.done or p.popen is None:
-                    if p.popen is None and not p.done and now >= p.next_start:
+                if p.done:
+                    continue
+                if p.popen is None:
+                    if now >= p.next_start and self._stop_level < 2:
                         self._spawn(p)
+                    elif self._stop_level >= 2:
+                        p.done = True
                     continue
                 rc = p.popen.poll()
                 if rc is None:
                     continue
                 p.rc = rc
-                if rc == 0 or self._stop_requests:
-                    p.done = True
+                if rc == 0:
+                    p.done = p.ended = True
                 elif rc == 2:
                     p.done = True
-                    input_error = input_error or self._error_line(p.name)
-                    self.request_stop()
-                elif p.restarts >= MAX_RESTARTS:
+                    self.input_error = self.input_error or self._error_line(p.name)
+                    self.request_stop(hard=True, user=False)
+                elif self._stop_level >= 2:
                     p.done = True
-                    print(f"smartroom: worker {p.name} died (exit {rc}) {p.restarts + 1} times; giving up on it",
-                          file=sys.stderr)
                 else:
-                    delay = min(30.0, 2.0 ** p.restarts)
-                    p.restarts += 1
-                    p.next_start = now + delay
-                    p.popen = None
-                    print(f"smartroom: worker {p.name} died (exit {rc}); restarting in {delay:.0f} s "
-                          f"(restart {p.restarts}/{MAX_RESTARTS})", file=sys.stderr)
+                    self._crashed(p, rc, now)
             if all(p.done for p in self.procs):
                 break
             frames = sum(s.figures.get("frames_out", 0) + s.figures.get("frames_in", 0) for s in self.stats.values())
             if frames != last_frames:
                 last_frames, last_progress = frames, now
             sources_done = all(p.done for p in self.procs if p.source)
-            if sources_done and now - last_progress > DRAIN_TIMEOUT_S:
-                print(f"smartroom: no progress for {DRAIN_TIMEOUT_S:.0f} s after the sources ended; stopping",
-                      file=sys.stderr)
-                self.request_stop()
-                self.request_stop()
-            if self._stop_time is not None and now - self._stop_time > STOP_GRACE_S:
-                self.request_stop()
-                self._stop_time = now
+            if sources_done and self._stop_level == 0 and now - last_progress > DRAIN_TIMEOUT_S:
+                stuck = [p.name for p in self.procs if not p.done]
+                reason = f"no progress for {DRAIN_TIMEOUT_S:.0f} s after the sources ended (waiting: {', '.join(stuck)})"
+                self.reasons.append(reason)
+                print(f"smartroom: {reason}; stopping", file=sys.stderr)
+                self.request_stop(hard=True, user=False)
+            self._escalate(now)
+            if now - self._last_stats_write >= STATS_PERIOD_S:
+                self._write_stats(final=False)
             time.sleep(0.05)
-        if input_error:
-            from app.errors import InputError
-            raise InputError(input_error)
-        crashed = [p.name for p in self.procs if p.rc not in (0, None) and not self._stop_requests]
-        return 1 if crashed else 0
+
+    def _escalate(self, now: float) -> None:
+        """A stop that takes too long: SIGTERM once, then SIGKILL once."""
+        if self._stop_time is None:
+            return
+        waited = now - self._stop_time
+        if self._stop_level == 1 and waited > STOP_GRACE_S:
+            print(f"smartroom: the stream did not end within {STOP_GRACE_S:.0f} s; terminating the workers",
+                  file=sys.stderr)
+            self.reasons.append(f"the end of stream did not reach every stage within {STOP_GRACE_S:.0f} s")
+            self.request_stop(hard=True, user=False)
+        elif self._stop_level == 2 and waited > KILL_GRACE_S:
+            with self._lock:
+                self._stop_level = 3
+            for p in self.procs:
+                if p.popen is not None and p.popen.poll() is None:
+                    print(f"smartroom: worker {p.name} still running {KILL_GRACE_S:.0f} s after SIGTERM; killed",
+                          file=sys.stderr)
+                    p.popen.kill()
 
     def _error_line(self, name: str) -> str:
         f = self.out / ERROR_DIR / f"{name}.error"
@@ -216,7 +326,69 @@ class Launcher:
         deadline = time.monotonic() + KILL_GRACE_S
         for p in alive:
             try:
-                p.popen.wait(max(0.0, deadline - time.monotonic()))
+                p.rc = p.popen.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 p.popen.kill()
-                p.popen.wait()
+                p.rc = p.popen.wait()
+
+    # -- what happened ---------------------------------------------------------------
+    @property
+    def complete(self) -> bool:
+        return (not self.reasons and not self.input_error
+                and all(p.ended for p in self.procs))
+
+    def _make_reserve(self) -> None:
+        try:
+            with open(self._reserve, "wb") as fh:
+                fh.write(b"\0" * RESERVE_BYTES)
+        except OSError:
+            pass
+
+    def summary(self, final: bool) -> dict:
+        stages = {name: {"stage": s.stage, "order": s.figures.get("order"), "final": s.final, "figures": s.figures}
+                  for name, s in self.stats.items() if "frames_in" in s.figures}
+        fps = self.layout.run.fps or 0.0
+        source = next((self.eos[p.name] for p in self.procs if p.source and p.name in self.eos), None)
+        expected = source.frames if source is not None else None
+        out = summarise(stages, fps, expected)
+        restarts = {p.name: p.restarts for p in self.procs}
+        for name, s in out["stages"].items():
+            s["restarts"] = restarts.get(name, s.get("restarts", 0))
+            s["frames_expected"] = expected
+        out["workers"] = {name: st["figures"] for name, st in stages.items()}
+        if final:
+            reasons = list(self.reasons)
+            if self.input_error:
+                reasons.append(self.input_error)
+            for p in self.procs:
+                if not p.ended and p.rc not in (None, 0) and not self.stopped_by_user and not reasons:
+                    reasons.append(f"worker {p.name} ended without finishing its stream ({_exit_text(p.rc)})")
+            out["complete"] = not reasons and all(p.ended for p in self.procs)
+            if reasons:
+                out["reasons"] = reasons
+            out["stopped_by_user"] = self.stopped_by_user
+            out["exits"] = {p.name: p.rc for p in self.procs}
+            out["restarts"] = {p.name: {"count": p.restarts, "failures": p.failures[-20:]}
+                               for p in self.procs if p.restarts or p.failures}
+        else:
+            out["complete"] = False
+            out["running"] = True
+        return out
+
+    def _write_stats(self, final: bool) -> None:
+        self._last_stats_write = time.monotonic()
+        path = self.out / "stats.json"
+        data = self.summary(final)
+        try:
+            write_json(path, data)
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            if not final:
+                return
+            self._reserve.unlink(missing_ok=True)   # the space kept for this moment
+            data["complete"] = False
+            data.setdefault("reasons", []).append("the disk is full")
+            write_json(path, data)
+        if final:
+            self._reserve.unlink(missing_ok=True)

@@ -15,6 +15,7 @@ which the worker base counts and skips.
 from __future__ import annotations
 
 import json
+import math
 import struct
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
@@ -23,7 +24,7 @@ import numpy as np
 
 __all__ = [
     "MessageError", "Message", "Frame", "Mask", "Voxels", "Tracks", "Poses", "Stats",
-    "EndOfStream", "Ack", "encode", "decode", "JOINTS",
+    "EndOfStream", "Ack", "encode", "decode", "JOINTS", "Blobs",
 ]
 
 MAGIC = b"SRM"
@@ -32,6 +33,9 @@ _HEADER = struct.Struct("<3sBBBHqddI")
 _ALIGN = 8
 _DTYPES = {np.dtype(d).str for d in ("u1", "i1", "u2", "i2", "u4", "i4", "u8", "i8", "f4", "f8", "?")}
 _MAX_META = 1 << 20
+_MAX_NAME = 64          # camera and worker names
+_MAX_SIDE = 16384       # image and mask sides (pixels)
+_MAX_VOXELS = 1 << 27   # grid cells of one voxel grid
 
 #: The contract's 15 joint names, in the order used by every array of joints.
 JOINTS = (
@@ -62,6 +66,9 @@ class Message:
     frame: int = -1
     stamp: float = 0.0
     t: float = 0.0
+    #: which run of the source the frame numbers belong to: a source that restarts
+    #: starts a new, larger epoch and downstream stages follow it (DESIGN §5)
+    epoch: int = 0
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)
@@ -71,6 +78,57 @@ class Message:
 
     def to_bytes(self) -> bytes:
         return encode(self)
+
+    def validate(self) -> None:
+        """Check what a decoded message says before a worker uses it (any process may
+        publish on the bus): raises :class:`MessageError` naming the first problem.
+        Subclasses extend it with their own fields and array shapes."""
+        _int(self, "frame", -1)
+        _int(self, "epoch", 0)
+        for name in ("stamp", "t"):
+            v = getattr(self, name)
+            if not isinstance(v, float) or not math.isfinite(v):
+                raise MessageError(f"{type(self).__name__}: {name} is not a finite number")
+
+
+def _int(msg, name: str, lo: int = 0, hi: int = 1 << 62) -> int:
+    v = getattr(msg, name)
+    if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+        raise MessageError(f"{type(msg).__name__}: {name} {v!r} is not an integer in {lo}..{hi}")
+    return v
+
+
+def _name(msg, field_name: str, value=None) -> str:
+    v = getattr(msg, field_name) if value is None else value
+    if not isinstance(v, str) or not v or len(v) > _MAX_NAME or any(c in v for c in "/*$?# "):
+        raise MessageError(f"{type(msg).__name__}: {field_name} {str(v)[:40]!r} is not a plain name")
+    return v
+
+
+def _names(msg, field_name: str) -> list:
+    v = getattr(msg, field_name)
+    if not isinstance(v, list) or len(v) > 256:
+        raise MessageError(f"{type(msg).__name__}: {field_name} is not a list of names")
+    for x in v:
+        _name(msg, field_name, x)
+    return v
+
+
+def _array(msg, name: str, dtypes: str, shape: tuple, allow_empty: bool = False):
+    """Check an array's dtype kind(s) and shape (None: any length on that axis)."""
+    a = getattr(msg, name)
+    cls = type(msg).__name__
+    if not isinstance(a, np.ndarray):
+        raise MessageError(f"{cls}.{name} is missing")
+    if allow_empty and a.size == 0:
+        return a
+    if a.dtype.str not in dtypes.split():
+        raise MessageError(f"{cls}.{name}: dtype {a.dtype} (expected {dtypes})")
+    if a.ndim != len(shape) or any(want is not None and have != want for have, want in zip(a.shape, shape)):
+        raise MessageError(f"{cls}.{name}: shape {a.shape} (expected {shape})")
+    if a.dtype.kind == "f" and a.size and not np.isfinite(a).all():
+        raise MessageError(f"{cls}.{name}: not finite")
+    return a
 
 
 def _meta_fields(cls) -> list[str]:
@@ -136,14 +194,16 @@ def decode(payload) -> Message:
     for name, desc in zip(cls.ARRAYS, descs):
         try:
             dtype_str, shape = desc
+            if not isinstance(dtype_str, str) or dtype_str not in _DTYPES or not isinstance(shape, list):
+                raise TypeError
             dtype = np.dtype(dtype_str)
-            shape = tuple(int(s) for s in shape)
-        except (TypeError, ValueError):
-            raise MessageError(f"{cls.__name__}.{name}: bad array descriptor") from None
-        if dtype.str not in _DTYPES or any(s < 0 for s in shape) or len(shape) > 8:
-            raise MessageError(f"{cls.__name__}.{name}: bad array descriptor {desc}")
+            if len(shape) > 8 or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape):
+                raise TypeError
+            shape = tuple(shape)
+        except (TypeError, ValueError, OverflowError):
+            raise MessageError(f"{cls.__name__}.{name}: bad array descriptor {str(desc)[:80]}") from None
         offset += -offset % _ALIGN
-        count = int(np.prod(shape, dtype=np.int64))
+        count = math.prod(shape)          # Python integers: a huge shape cannot overflow
         nbytes = count * dtype.itemsize
         if offset + nbytes > n:
             raise MessageError(f"{cls.__name__}.{name}: truncated ({nbytes} bytes announced, {max(0, n - offset)} present)")
@@ -159,20 +219,38 @@ def decode(payload) -> Message:
     kwargs.update(values)
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise MessageError(f"{cls.__name__}: {exc}") from None
+
+
+def peek_frame(payload) -> int:
+    """The frame index of an encoded message, from its header alone."""
+    if len(payload) < _HEADER.size or bytes(payload[:3]) != MAGIC:
+        raise MessageError("not a smartroom message")
+    return _HEADER.unpack_from(payload, 0)[5]
 
 
 # -- message types ----------------------------------------------------------------
 
 @dataclass(kw_only=True)
 class Frame(Message):
-    """One camera image as grabbed (H, W, 3) uint8, BGR."""
+    """One camera image as grabbed (H, W, 3) uint8, BGR. ``cameras`` is the frame set:
+    every camera the grabber sent for this frame index, so the stages after it know
+    which views of the frame to wait for (a camera that failed is not in it)."""
 
     TYPE_ID: ClassVar[int] = 1
     ARRAYS: ClassVar[tuple[str, ...]] = ("image",)
     camera: str = ""
+    cameras: list = field(default_factory=list)
     image: np.ndarray = None
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "camera")
+        _names(self, "cameras")
+        img = _array(self, "image", "|u1", (None, None, 3))
+        if not (0 < img.shape[0] <= _MAX_SIDE and 0 < img.shape[1] <= _MAX_SIDE):
+            raise MessageError(f"Frame: image of {img.shape[1]}x{img.shape[0]} pixels")
 
 
 @dataclass(kw_only=True)
@@ -189,8 +267,19 @@ class Mask(Message):
     width: int = 0
     height: int = 0
     colour_scale: int = 1
+    cameras: list = field(default_factory=list)   # the frame set (see Frame)
     bits: np.ndarray = None
     colour: np.ndarray = None
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "camera")
+        _names(self, "cameras")
+        _int(self, "width", 1, _MAX_SIDE)
+        _int(self, "height", 1, _MAX_SIDE)
+        _int(self, "colour_scale", 1, 64)
+        _array(self, "bits", "|u1", (self.height, (self.width + 7) // 8))
+        _array(self, "colour", "|u1", (None, None, 3), allow_empty=True)
 
     @classmethod
     def pack(cls, mask: np.ndarray, **kw) -> "Mask":
@@ -222,9 +311,36 @@ class Voxels(Message):
     colours: np.ndarray = None
     surface: np.ndarray = None
 
+    def validate(self) -> None:
+        super().validate()
+        check_voxel_fields(self)
+
     def centres(self) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3)."""
         return np.asarray(self.origin) + (self.indices.astype(np.float64) + 0.5) * self.voxel_size
+
+
+def check_voxel_fields(msg) -> int:
+    """Validate the grid and voxel fields a message shares with :class:`Voxels`
+    (voxel_size, origin, dims, cameras, indices, colours, surface); the voxel count."""
+    cls = type(msg).__name__
+    if not isinstance(msg.voxel_size, float) or not 1e-3 <= msg.voxel_size <= 1.0:
+        raise MessageError(f"{cls}: voxel_size {msg.voxel_size!r} is not 0.001 .. 1 m")
+    if (not isinstance(msg.origin, list) or len(msg.origin) != 3
+            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in msg.origin)):
+        raise MessageError(f"{cls}: origin is not three numbers")
+    if (not isinstance(msg.dims, list) or len(msg.dims) != 3
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 16 for v in msg.dims)
+            or math.prod(msg.dims) > _MAX_VOXELS):
+        raise MessageError(f"{cls}: dims {str(msg.dims)[:60]} is not a grid size")
+    _names(msg, "cameras")
+    idx = _array(msg, "indices", "<i2 <u2 <i4 <u4 <i8", (None, 3), allow_empty=True)
+    n = len(idx) if idx.size else 0
+    if n and (idx.min() < 0 or (idx.max(axis=0) >= np.asarray(msg.dims)).any()):
+        raise MessageError(f"{cls}: indices outside the grid")
+    _array(msg, "colours", "|u1", (n, 3), allow_empty=True)
+    _array(msg, "surface", "|b1", (n,), allow_empty=True)
+    return n
 
 
 @dataclass(kw_only=True)
@@ -235,6 +351,11 @@ class Tracks(Message):
     ARRAYS: ClassVar[tuple[str, ...]] = ("ids", "positions")
     ids: np.ndarray = None
     positions: np.ndarray = None
+
+    def validate(self) -> None:
+        super().validate()
+        ids = _array(self, "ids", "<i4 <i8 <u4", (None,), allow_empty=True)
+        _array(self, "positions", "<f4 <f8", (ids.size, 3), allow_empty=ids.size == 0)
 
 
 @dataclass(kw_only=True)
@@ -248,6 +369,13 @@ class Poses(Message):
     joints: np.ndarray = None
     active: np.ndarray = None
 
+    def validate(self) -> None:
+        super().validate()
+        tracks = _array(self, "tracks", "<i4 <i8 <u4", (None,), allow_empty=True)
+        n = tracks.size
+        _array(self, "joints", "<f4 <f8", (n, len(JOINTS), 3), allow_empty=n == 0)
+        _array(self, "active", "|b1", (n, len(JOINTS)), allow_empty=n == 0)
+
 
 @dataclass(kw_only=True)
 class Stats(Message):
@@ -258,6 +386,12 @@ class Stats(Message):
     stage: str = ""
     final: bool = False
     figures: dict = field(default_factory=dict)
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+        if not isinstance(self.stage, str) or not isinstance(self.final, bool) or not isinstance(self.figures, dict):
+            raise MessageError("Stats: stage, final or figures of the wrong type")
 
 
 @dataclass(kw_only=True)
@@ -274,6 +408,14 @@ class EndOfStream(Message):
     fps: float = 0.0
     figures: dict = field(default_factory=dict)
 
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+        _int(self, "frames")
+        _int(self, "first")
+        if not isinstance(self.fps, (int, float)) or not 0 <= self.fps <= 10000 or not isinstance(self.figures, dict):
+            raise MessageError("EndOfStream: fps or figures of the wrong type")
+
 
 @dataclass(kw_only=True)
 class Ack(Message):
@@ -281,3 +423,73 @@ class Ack(Message):
 
     TYPE_ID: ClassVar[int] = 8
     worker: str = ""
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+
+
+@dataclass(kw_only=True)
+class Blobs(Message):
+    """Connected components of one frame's voxels (§4.2.3): the voxels themselves (as in
+    :class:`Voxels`, so the tracker needs no second stream), the component ``labels`` (N,)
+    int32 of each voxel, the ``features`` (K, len(FEATURES)) float32 of each component
+    (Table 4.1 first, then the centroid and size) and the classifier's ``person`` verdict
+    (K,) uint8 (1 = person)."""
+
+    TYPE_ID: ClassVar[int] = 10
+    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "labels", "features", "person")
+    #: weight (kg), z-centroid, top, height, larger and smaller horizontal extent (m;
+    #: Table 4.1), then the centroid x, y (m) and the voxel count
+    FEATURES: ClassVar[tuple[str, ...]] = ("weight", "z_centroid", "top", "height", "extent_major",
+                                           "extent_minor", "x", "y", "voxels")
+    voxel_size: float = 0.0
+    origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    dims: list = field(default_factory=lambda: [0, 0, 0])
+    cameras: list = field(default_factory=list)
+    indices: np.ndarray = None
+    colours: np.ndarray = None
+    surface: np.ndarray = None
+    labels: np.ndarray = None
+    features: np.ndarray = None
+    person: np.ndarray = None
+
+    def validate(self) -> None:
+        """Raise :class:`MessageError` unless shapes, dtypes and labels are consistent."""
+        base = getattr(super(), "validate", None)
+        if base is not None:
+            base()
+
+        def bad(what):
+            raise MessageError(f"Blobs: {what}")
+        if not (isinstance(self.voxel_size, (int, float)) and 0 < self.voxel_size <= 1):
+            bad(f"voxel_size {self.voxel_size!r} is not in (0, 1] m")
+        if len(self.origin) != 3 or len(self.dims) != 3 or any(int(d) <= 0 or int(d) > 65535 for d in self.dims):
+            bad("origin and dims must hold 3 values, dims in 1 .. 65535")
+        idx = self.indices
+        if idx is None or idx.dtype != np.uint16 or idx.ndim != 2 or idx.shape[1] != 3:
+            bad("indices must be (N, 3) uint16")
+        n = len(idx)
+        if n and (idx.max(axis=0) >= np.asarray(self.dims)).any():
+            bad("indices outside dims")
+        if self.colours is None or self.colours.dtype != np.uint8 or self.colours.shape not in ((n, 3), (0,), (0, 3)):
+            bad(f"colours must be ({n}, 3) uint8 or empty")
+        if self.surface is None or self.surface.shape not in ((n,), (0,)) or self.surface.dtype not in (np.bool_, np.uint8):
+            bad(f"surface must be ({n},) bool or empty")
+        f = self.features
+        if f is None or f.dtype != np.float32 or f.ndim != 2 or f.shape[1] != len(self.FEATURES):
+            bad(f"features must be (K, {len(self.FEATURES)}) float32")
+        k = len(f)
+        lab = self.labels
+        if lab is None or lab.dtype != np.int32 or lab.shape != (n,):
+            bad(f"labels must be ({n},) int32")
+        if n and (lab.min() < 0 or lab.max() >= k):
+            bad(f"labels outside 0 .. {k - 1}")
+        if self.person is None or self.person.dtype != np.uint8 or self.person.shape != (k,):
+            bad(f"person must be ({k},) uint8")
+        if not np.isfinite(f).all():
+            bad("features not finite")
+
+    def centres(self) -> np.ndarray:
+        """World coordinates of the voxel centres (N, 3)."""
+        return np.asarray(self.origin) + (self.indices.astype(np.float64) + 0.5) * self.voxel_size

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from app.errors import InputError
 from app.files import partial_path
-from app.messages import MessageError, Voxels, decode, encode
+from app.messages import MessageError, Voxels, decode, encode, peek_frame
 
 __all__ = ["VoxelWriter", "iter_voxels"]
 
@@ -22,21 +22,49 @@ _LEN = struct.Struct("<Q")
 
 
 class VoxelWriter:
+    """Records appended to ``voxels.bin.partial`` (resumed after a crash: a record cut
+    short is removed), renamed by :meth:`close` with ``final=True``."""
+
     def __init__(self, path: Path):
         self.path = Path(path)
         self.tmp = partial_path(self.path)
-        self.fh = open(self.tmp, "wb")
-        self.count = 0
+        self.frames: set[int] = set()
+        if self.tmp.exists():
+            keep = 0
+            with open(self.tmp, "rb") as fh:
+                while True:
+                    head = fh.read(_LEN.size)
+                    if len(head) < _LEN.size:
+                        break
+                    (size,) = _LEN.unpack(head)
+                    payload = fh.read(size)
+                    if len(payload) < size:
+                        break
+                    try:
+                        self.frames.add(peek_frame(payload))
+                    except MessageError:
+                        break
+                    keep += _LEN.size + size
+            os.truncate(self.tmp, keep)
+        self.fh = open(self.tmp, "ab", buffering=0)
 
-    def write(self, msg: Voxels) -> None:
+    @property
+    def count(self) -> int:
+        return len(self.frames)
+
+    def write(self, msg: Voxels) -> bool:
+        """Append one frame; False when that frame is already in the file."""
+        if msg.frame in self.frames:
+            return False
         payload = encode(msg)
-        self.fh.write(_LEN.pack(len(payload)))
-        self.fh.write(payload)
-        self.count += 1
+        self.fh.write(_LEN.pack(len(payload)) + payload)   # one write: a crash cuts at most this record
+        self.frames.add(msg.frame)
+        return True
 
-    def close(self) -> None:
+    def close(self, final: bool = True) -> None:
         self.fh.close()
-        os.replace(self.tmp, self.path)
+        if final:
+            os.replace(self.tmp, self.path)
 
 
 def iter_voxels(path):

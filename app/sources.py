@@ -26,7 +26,8 @@ class RecordingSource:
 
     live = False
 
-    def __init__(self, path, cameras=None, start: int = 0, frames: int | None = None):
+    def __init__(self, path, cameras=None, start: int = 0, frames: int | None = None, skip_bad: bool = False,
+                 lost: dict | None = None):
         self.recording = Recording(path)
         self.calibration = self.recording.calibration
         self.cameras = list(cameras) if cameras else self.recording.cameras
@@ -39,9 +40,11 @@ class RecordingSource:
         stop = self.recording.frame_count if frames is None else min(self.recording.frame_count, start + frames)
         self.stop = stop
         self.expected = stop - start
+        self.skip_bad = skip_bad
+        self.lost = {} if lost is None else lost   # camera -> undecodable frames skipped
 
     def frames(self):
-        yield from self.recording.frames(self.cameras, self.start, self.stop)
+        yield from self.recording.frames(self.cameras, self.start, self.stop, skip_bad=self.skip_bad, lost=self.lost)
 
     def close(self):
         pass
@@ -71,6 +74,7 @@ class _CameraThread(threading.Thread):
         self.latest: np.ndarray | None = None
         self.fresh = False
         self.failed_since: float | None = None
+        self.why = ""
         self.stopped = threading.Event()
         self.cap = None
 
@@ -114,6 +118,7 @@ class _CameraThread(threading.Thread):
             self.cap.release()
 
     def _failed(self, why: str):
+        self.why = why
         if self.failed_since is None:
             self.failed_since = time.time()
             log.warning("camera %s (%s) %s; the others go on, retrying every %.0f s", self.cam, self.source, why, self.reopen_s)
@@ -133,8 +138,12 @@ class LiveSource:
 
     live = True
 
-    def __init__(self, sources: dict, calibration: Calibration, frames: int | None = None):
+    def __init__(self, sources: dict, calibration: Calibration, frames: int | None = None,
+                 stop: threading.Event | None = None, open_timeout: float = 10.0):
         self.calibration = calibration
+        self.stop_event = stop or threading.Event()
+        self.open_timeout = open_timeout
+        self.failed: set[str] = set()   # cameras that never delivered or stopped delivering
         self.cameras = list(sources)
         for c in self.cameras:
             calibration.camera(c)
@@ -146,13 +155,29 @@ class LiveSource:
         self._closed = threading.Event()
 
     def frames(self):
+        """Frames until the limit, a stop, or :meth:`close`. No camera delivering within
+        ``open_timeout`` is an error naming every camera; a camera that never delivers
+        while others do is flagged (``failed``) and the others go on."""
         for t in self.threads.values():
             t.start()
         index, tick, period, t0 = 0, 0, 1.0 / self.fps, time.monotonic()
-        while not self._closed.is_set() and (self.expected is None or index < self.expected):
-            self._closed.wait(max(0.0, t0 + tick * period - time.monotonic()))
+        delivered: set[str] = set()
+        while (not self._closed.is_set() and not self.stop_event.is_set()
+               and (self.expected is None or index < self.expected)):
+            self.stop_event.wait(max(0.0, t0 + tick * period - time.monotonic()))
             tick += 1
             images = {c: img for c, t in self.threads.items() if (img := t.take()) is not None}
+            delivered |= set(images)
+            waited = time.monotonic() - t0
+            if waited > self.open_timeout:
+                if not delivered:
+                    raise InputError("no live camera delivered an image in %.0f s: %s" % (self.open_timeout, "; ".join(
+                        f"{c} ({t.source}) {t.why or 'delivered nothing'}" for c, t in self.threads.items())))
+                never = set(self.threads) - delivered
+                if never - self.failed:
+                    log.error("camera %s never delivered an image; going on without it",
+                              ", ".join(sorted(never - self.failed)))
+                self.failed = never | {c for c, t in self.threads.items() if t.failed_since is not None}
             if images:
                 yield index, images
                 index += 1

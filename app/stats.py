@@ -62,6 +62,25 @@ class _FrameSet:
     def count_below(self, i: int) -> int:
         return self.bits[:max(0, i)].count(1)
 
+    def ranges(self) -> list[list[int]]:
+        """The set as ``[[start, stop), ...]`` runs (compact: frames come in runs)."""
+        a = np.frombuffer(bytes(self.bits), dtype=np.uint8).astype(np.int8)
+        if not a.size:
+            return []
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], a, [0]))))
+        return edges.reshape(-1, 2).tolist()
+
+    @classmethod
+    def from_ranges(cls, ranges) -> "_FrameSet":
+        s = cls()
+        for start, stop in ranges or []:
+            if 0 <= start < stop <= (1 << 40):
+                if stop > len(s.bits):
+                    s.bits.extend(b"\0" * (stop - len(s.bits)))
+                s.bits[start:stop] = b"\1" * (stop - start)
+        s.count = s.bits.count(1)
+        return s
+
 
 class StageLedger:
     """Counts, latencies and timings of one worker."""
@@ -90,6 +109,8 @@ class StageLedger:
         self.process_total = 0.0
         self._proc_frame = None
         self.started = clock()
+        #: ``journal(kind, frame)`` is told of every frame first seen ("i") or done ("o")
+        self.journal = None
 
     # -- feeding ------------------------------------------------------------------
     def received(self, frame: int, stamp: float) -> None:
@@ -100,6 +121,8 @@ class StageLedger:
         if stamp and (self.first_stamp is None or stamp < self.first_stamp):
             self.first_stamp = stamp
         if self.seen.add(frame):
+            if self.journal is not None:
+                self.journal("i", frame)
             self._events.append((now, "in", 0.0))
             if self.trace is not None:
                 self.trace[frame] = [stamp, now, None]
@@ -110,6 +133,8 @@ class StageLedger:
         self.items_out += 1
         self.last_emit = now
         if self.done.add(frame):
+            if self.journal is not None:
+                self.journal("o", frame)
             lat = (now - stamp) * 1e3 if stamp else 0.0
             self.latency_ms.append(lat)
             if self.trace is not None:
@@ -130,6 +155,38 @@ class StageLedger:
 
     def dropped_item(self, n: int = 1) -> None:
         self.items_dropped += n
+
+    # -- across restarts ------------------------------------------------------------
+    def state(self) -> dict:
+        """What a restarted incarnation of the worker carries on from (counts and the
+        frames seen and done; latencies start afresh)."""
+        return {"seen": self.seen.ranges(), "done": self.done.ranges(), "items_in": self.items_in,
+                "items_out": self.items_out, "items_dropped": self.items_dropped,
+                "bad_messages": self.bad_messages, "last_frame": self.last_frame,
+                "newest_out": self.newest_out, "first_stamp": self.first_stamp, "last_emit": self.last_emit,
+                "process_total": self.process_total}
+
+    def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
+        """Take over an earlier incarnation's :meth:`state` and the frames its journal
+        recorded after that state was saved."""
+        self.seen = _FrameSet.from_ranges(state.get("seen"))
+        self.done = _FrameSet.from_ranges(state.get("done"))
+        for kind, frame in journal:
+            if kind == "i" and self.seen.add(frame):
+                self.items_in += 1
+                self.last_frame = max(self.last_frame, frame)
+            elif kind == "o" and self.done.add(frame):
+                self.items_out += 1
+                self.newest_out = max(self.newest_out, frame)
+        for name in ("items_in", "items_out", "items_dropped", "bad_messages", "last_frame", "newest_out"):
+            v = state.get(name)
+            if isinstance(v, int):
+                setattr(self, name, v)
+        for name in ("first_stamp", "last_emit"):
+            v = state.get(name)
+            if isinstance(v, (int, float)):
+                setattr(self, name, float(v))
+        self.process_total = float(state.get("process_total") or 0.0)
 
     def bad_message(self) -> None:
         self.bad_messages += 1
@@ -206,9 +263,10 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
 
     ``stages`` maps worker name to ``{"stage", "order", "figures"}``. A stage's
     throughput is the frames it put out over the wall time from the first capture to
-    its last output; the pipeline runs at the pace of its slowest processing stage
-    (``final_stage``: every frame it drops is a frame the pipeline did not fully
-    process), and its real-time factor is ``RTF = fps / f_R`` (thesis Eq. 4.27).
+    its last output. The pipeline's throughput is that of its last processing stage
+    (``final_stage``): the frames delivered at the end of the pipeline, so a frame
+    dropped or lost anywhere before counts against it; its real-time factor is
+    ``RTF = fps / f_R`` (thesis Eq. 4.27). ``bottleneck`` names the slowest stage.
     """
     per_stage = {}
     for name, s in stages.items():
@@ -237,10 +295,15 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
     if procs:
         slowest = min(procs, key=lambda n: (per_stage[n]["fps"], -per_stage[n]["order"]))
         deepest = max(procs, key=lambda n: per_stage[n]["order"])
-        fps = per_stage[slowest]["fps"]
+        fps = per_stage[deepest]["fps"]
+        delivered = per_stage[deepest]["frames_out"]
         out.update({
-            "final_stage": slowest,
+            "final_stage": deepest,
+            "bottleneck": slowest,
             "fps": fps,
+            # frames delivered at the end of the pipeline, over the frames the source sent
+            "frames_delivered": delivered,
+            "delivered_ratio": round(delivered / frames, 4) if frames else None,
             "rtf": round(fps / recording_fps, 4) if recording_fps else None,
             "end_to_end_latency_ms": stages[deepest]["figures"].get("latency_ms", {}),
         })

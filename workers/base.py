@@ -1,19 +1,34 @@
-"""The one worker base: session, subscriptions with latest-frame-wins inboxes, the
-loop, stats once a second, liveliness, end of stream and clean exit on SIGTERM.
+"""The one worker base: session, subscriptions with bounded inboxes, admission of what
+arrives from the bus, the loop, stats once a second, liveliness, end of stream, and
+what a worker carries across a restart.
 
 A worker subclass declares what it consumes and produces and implements
 :meth:`Worker.handle` (a filter stage) or :meth:`Worker.produce` (a source). It
 publishes with :meth:`Worker.publish`; everything else lives here.
 
-End of stream: a source publishes :class:`~app.messages.EndOfStream` after its last
-frame. A stage that has received it from every upstream worker handles what is still
-in its inbox, calls :meth:`Worker.flush`, publishes its final stats and its own end
-of stream, and exits 0. SIGTERM/SIGINT end a source the same way and make any other
-worker finish at once (files completed, final stats published).
+End of stream is a fact about input (DESIGN §5). A source publishes
+:class:`~app.messages.EndOfStream` when its input ends: the recording is over, or it
+was asked to stop (SIGINT: the launcher's first stop request, Ctrl-C). A stage
+publishes its own once every worker upstream of it in the layout has ended: sent its
+end of stream *and* left the bus (its liveliness token is gone). A worker that crashes
+or is terminated (SIGTERM, its launcher gone) sends final stats but no end of stream,
+exits with :data:`EXIT_TERMINATED`, and the launcher restarts it; a forged end of
+stream from a worker that keeps running is discarded.
+
+Offline (a recording) nothing is dropped: inboxes are deep, outputs block instead of
+dropping, and the source is paced by the stages' acknowledgements, so a run gives the
+same results on an idle and on a loaded machine. Live, inboxes are latest-frame-wins
+and every drop is counted.
+
+Everything received is validated (codec, the type's ``validate()``, the frame window
+and epoch of its stream, and the stage's own :meth:`Worker.admit`); what fails is
+counted per key and reason and dropped, with a rate-limited log line.
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -22,16 +37,27 @@ from collections import deque
 from pathlib import Path
 from typing import ClassVar
 
+from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.config import Layout, WorkerSpec
 from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 
-__all__ = ["Worker", "Inbox"]
+__all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
+STATE_PERIOD_S = 0.5
 END_GRACE_S = 0.3
+EOS_CONFIRM_S = 3.0      # an end of stream counts when its sender leaves the bus within this time
+LOSSLESS_DEPTH = 256     # inbox depth per key offline (flow control keeps it far below)
+MAX_KEYS = 64            # distinct keys an inbox holds queues for
+
+EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
+EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
+EXIT_TERMINATED = 143    # stopped before its input ended (SIGTERM, launcher gone): restartable
+ENDED_ENV = "SMARTROOM_ENDED"              # the launcher's list of workers already ended
+LAUNCHER_PID_ENV = "SMARTROOM_LAUNCHER_PID"
 
 
 class Inbox:
@@ -40,19 +66,24 @@ class Inbox:
     Each concrete key (e.g. one camera's frames) keeps at most ``depth`` samples; a
     newer sample pushes out the oldest, which is counted as dropped. ``get`` returns
     the oldest waiting sample over all keys, so cameras are served in arrival order.
+    At most ``max_keys`` keys get a queue (a wildcard subscription cannot be made to
+    grow without bound); samples on further keys are refused (``put`` returns False).
     """
 
-    def __init__(self, depth: int = 1, on_drop=None):
+    def __init__(self, depth: int = 1, on_drop=None, max_keys: int = MAX_KEYS):
         self.depth = max(1, int(depth))
+        self.max_keys = max_keys
         self.queues: dict[str, deque] = {}
         self.cond = threading.Condition()
         self.seq = 0
         self.on_drop = on_drop
 
-    def put(self, key: str, item) -> None:
+    def put(self, key: str, item) -> bool:
         with self.cond:
             q = self.queues.get(key)
             if q is None:
+                if len(self.queues) >= self.max_keys:
+                    return False
                 q = self.queues[key] = deque()
             if len(q) >= self.depth:
                 q.popleft()
@@ -61,6 +92,7 @@ class Inbox:
             self.seq += 1
             q.append((self.seq, item))
             self.cond.notify()
+            return True
 
     def get(self, timeout: float):
         """The oldest waiting ``(key, item)``, or None after ``timeout`` seconds."""
@@ -95,9 +127,13 @@ class Worker:
     PER_CAMERA: ClassVar[tuple[str, ...]] = ("frame", "mask")
     DISPLAY: ClassVar[bool] = False      # an interactive view: not started with --headless
     DEFAULTS: ClassVar[dict] = {}
-    INBOX_DEPTH: ClassVar[int] = 1       # latest-frame-wins by default
+    #: allowed ranges of numeric parameters ``{name: (lo, hi)}``, checked by the config loader
+    RANGES: ClassVar[dict] = {}
+    #: allowed values of text parameters ``{name: (choice, ...)}``, checked by the config loader
+    CHOICES: ClassVar[dict] = {}
+    INBOX_DEPTH: ClassVar[int] = 1       # latest-frame-wins by default (live)
     ACCEPTS: ClassVar[tuple] = ()        # message types handle() takes (others are bad messages)
-    DROP_OUTPUT: ClassVar[bool] = True   # data outputs use congestion control DROP
+    DROP_OUTPUT: ClassVar[bool] = True   # live data outputs use congestion control DROP
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
         self.spec = spec
@@ -107,17 +143,33 @@ class Worker:
         self.keys = Keys(layout.room)
         self.log = logging.getLogger(f"smartroom.{self.name}")
         self.ledger = StageLedger(trace=layout.run.trace)
-        self.inbox = Inbox(self.INBOX_DEPTH, on_drop=self.ledger.dropped_item)
+        #: offline (a recording): nothing may be dropped, so results do not depend on load
+        self.lossless = bool(layout.run.recording) and not self.DISPLAY
+        depth = max(self.INBOX_DEPTH, LOSSLESS_DEPTH) if self.lossless else self.INBOX_DEPTH
+        self.inbox = Inbox(depth, on_drop=self.ledger.dropped_item)
+        self.rejections = Rejections(self.log)
+        self.windows: dict[str, FrameWindow] = {}
         self.stop_event = threading.Event()
         self.session = None
+        self.alive: set[str] = set()         # workers whose liveliness token is on the bus
+        self._died: dict[str, float] = {}    # worker -> when its token went away
         self._publishers: dict[str, Publisher] = {}
-        self._upstream_done: dict[str, EndOfStream] = {}
+        self._upstream_eos: dict[str, tuple[EndOfStream, float]] = {}
+        self._ended_upstream: set[str] = set()
         self._source_eos: EndOfStream | None = None
         self._subs = []
         self._token = None
         self._last_stats = 0.0
+        self._last_state = 0.0
         self._idle = 0.0
-        self.exit_code = 0
+        self._epoch = 0                      # epoch of the input being handled (outputs inherit it)
+        self._signal: int | None = None
+        self._journal_fd: int | None = None
+        self.ledger.journal = self._journal
+        self.input_ended = False             # True once this worker's input has truly ended
+        self.incarnation = 0                 # restarts of this worker within the run
+        self.exit_code = EXIT_ENDED
+        self._lock = threading.Lock()
 
     # -- what subclasses provide ------------------------------------------------------
     @property
@@ -144,6 +196,11 @@ class Worker:
     def setup(self) -> None:
         """Load what the worker needs before it is announced alive (tables, models)."""
 
+    def admit(self, key: str, msg: Message) -> str | None:
+        """A valid message this stage still cannot use (e.g. an unknown camera): the
+        reason, or None to handle it."""
+        return None
+
     def handle(self, key: str, msg: Message) -> None:
         """Process one input message (filter stages)."""
         raise NotImplementedError
@@ -156,7 +213,8 @@ class Worker:
         """End of stream: process what is pending (e.g. incomplete multi-camera frames)."""
 
     def close(self) -> None:
-        """Release resources and complete files."""
+        """Release resources and complete files (``self.input_ended`` says whether the
+        stream truly ended: only then are result files final)."""
 
     def on_stats(self, msg: Stats) -> None:
         """Stats of any worker (only for kinds that consume ``stats``)."""
@@ -164,14 +222,38 @@ class Worker:
     def tick(self) -> None:
         """Called on every turn of the loop (at least every 50 ms when idle)."""
 
+    def extra_state(self) -> dict:
+        """Stage state carried to the next incarnation after a crash (JSON-able)."""
+        return {}
+
+    def restore_state(self, state: dict) -> None:
+        """Take over what :meth:`extra_state` of an earlier incarnation returned."""
+
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self._publishers[key] = Publisher(self.session, key, droppable=self.DROP_OUTPUT)
+            droppable = self.DROP_OUTPUT and not self.lossless
+            pub = self._publishers[key] = Publisher(self.session, key, droppable=droppable)
+        if not msg.epoch:
+            msg.epoch = self._epoch
         pub.put(msg)
         if counts:
             self.ledger.emitted(msg.frame, msg.stamp)
+
+    def status(self, text: str) -> None:
+        """Say what the worker is doing before frames flow (compiling kernels, building a
+        background): shown by the monitor and the launcher's progress line."""
+        self.log.info("%s", text)
+        if self.session is not None:
+            self._control_pub(self.keys.stats(self.name)).put(
+                Stats(frame=-1, stamp=time.time(), worker=self.name, stage=self.stage, final=False,
+                      figures={"status": text, "order": self.ORDER}))
+
+    def reject(self, key: str, reason: str, detail: str = "") -> None:
+        """Count and drop a message this worker cannot use."""
+        self.rejections.add(self.keys.relative(key), reason, detail)
+        self.ledger.bad_messages = self.rejections.total
 
     def sleep(self, seconds: float) -> None:
         """Wait (a source pacing itself); wakes on stop, and is not counted as busy."""
@@ -197,42 +279,144 @@ class Worker:
         from workers import upstream_of
         return upstream_of(self.layout, self.spec)
 
-    # -- the process ------------------------------------------------------------------
+    # -- signals, the launcher, liveliness -------------------------------------------
     def _install_signals(self) -> None:
-        def stop(signum, _frame):
-            self.log.info("signal %d: finishing", signum)
+        def stop(signum, _frame):   # no logging here: a handler may interrupt a log call
+            if self._signal is None:
+                self._signal = signum
             self.stop_event.set()
             self.inbox.wake()
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
 
+    def _watch_launcher(self) -> None:
+        """A worker started by a launcher exits when that launcher is gone (no orphans)."""
+        pid = os.environ.get(LAUNCHER_PID_ENV)
+        if not pid or not pid.isdigit():
+            return
+        pid = int(pid)
+
+        def watch():
+            while not self.stop_event.wait(0.2):
+                if os.getppid() != pid:
+                    self._signal = self._signal or signal.SIGHUP
+                    self.stop_event.set()
+                    self.inbox.wake()
+                    return
+        threading.Thread(target=watch, daemon=True, name="launcher-watch").start()
+
+    def _on_liveliness(self, sample) -> None:
+        import zenoh
+        name = self.keys.last(sample.key_expr)
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.alive.discard(name)
+                self._died[name] = time.monotonic()
+            else:
+                self.alive.add(name)
+        self.inbox.wake()
+
+    def _seed_ended(self) -> None:
+        """Upstream workers that ended before this incarnation started (from the launcher)."""
+        try:
+            ended = json.loads(os.environ.get(ENDED_ENV) or "[]")
+        except ValueError:
+            return
+        for e in ended if isinstance(ended, list) else []:
+            if isinstance(e, dict) and e.get("worker") in self._wait_for:
+                self._ended_upstream.add(e["worker"])
+                if isinstance(e.get("frames"), int) and (self._source_eos is None or e["frames"] > self._source_eos.frames):
+                    self._source_eos = EndOfStream(worker=e["worker"], frames=e["frames"], first=int(e.get("first", 0)),
+                                                   fps=float(e.get("fps", 0.0)))
+
+    # -- what arrives ------------------------------------------------------------------
     def _on_sample(self, sample) -> None:
-        self.inbox.put(str(sample.key_expr), sample)
+        key = str(sample.key_expr)
+        if not self.inbox.put(key, sample):
+            self.reject(key, "too many keys")
 
     def _on_control(self, sample) -> None:
+        key = str(sample.key_expr)
         try:
             msg = decode_sample(sample)
+            msg.validate()
         except MessageError as exc:
-            self.ledger.bad_message()
-            self.log.warning("bad control message on %s: %s", sample.key_expr, exc)
+            self.reject(key, "malformed", str(exc))
             return
         if isinstance(msg, EndOfStream):
             if "stats" in self.CONSUMES:  # the end of stream carries the worker's final figures
                 self.on_stats(Stats(frame=msg.frame, stamp=msg.stamp, worker=msg.worker, stage=msg.stage,
                                     final=True, figures=msg.figures))
-            if msg.worker in self._wait_for and msg.worker not in self._upstream_done:
-                if self._source_eos is None or msg.frames > self._source_eos.frames:
-                    self._source_eos = msg
-                self._upstream_done[msg.worker] = msg
-                self.inbox.wake()
+            if msg.worker != self.keys.last(key):
+                self.reject(key, "end of stream under another worker's name")
+                return
+            if msg.worker not in self._wait_for:
+                return   # another stage's end: not this worker's input
+            with self._lock:
+                self._upstream_eos[msg.worker] = (msg, time.monotonic())
+            self.inbox.wake()
         elif isinstance(msg, Stats):
+            if msg.worker != self.keys.last(key):
+                self.reject(key, "stats under another worker's name")
+                return
             self.on_stats(msg)
+        else:
+            self.reject(key, f"unexpected {type(msg).__name__}")
 
+    def _upstream_ended(self, name: str, now: float) -> bool:
+        """``name`` has ended: it sent its end of stream and left the bus around then."""
+        if name in self._ended_upstream:
+            return True
+        with self._lock:
+            got = self._upstream_eos.get(name)
+            if got is None:
+                return False
+            eos, arrived = got
+            if name in self.alive:
+                if now - arrived > EOS_CONFIRM_S:   # still running: a forged end of stream
+                    del self._upstream_eos[name]
+                    self.rejections.add(self.keys.relative(self.keys.eos(name)), "end of stream from a running worker")
+                return False
+            died = self._died.get(name, arrived)
+            if abs(died - arrived) > EOS_CONFIRM_S:   # it crashed long after a forged end of stream
+                del self._upstream_eos[name]
+                return False
+        self._ended_upstream.add(name)
+        if self._source_eos is None or eos.frames > self._source_eos.frames:
+            self._source_eos = eos
+        return True
+
+    def _admit(self, key: str, sample) -> Message | None:
+        try:
+            msg = decode_sample(sample)
+            msg.validate()
+        except MessageError as exc:
+            self.reject(key, "malformed", str(exc))
+            return None
+        if self.ACCEPTS and not isinstance(msg, self.ACCEPTS):
+            self.reject(key, f"unexpected {type(msg).__name__}")
+            return None
+        camera = getattr(msg, "camera", None)
+        if camera is not None and self.keys.last(key) != camera:
+            self.reject(key, "camera does not match its key", str(camera)[:40])
+            return None
+        window = self.windows.get(key)
+        if window is None:
+            window = self.windows[key] = FrameWindow()
+        reason = window.admit(msg.epoch, msg.frame) or self.admit(key, msg)
+        if reason:
+            self.reject(key, reason, f"frame {msg.frame}, epoch {msg.epoch}")
+            return None
+        return msg
+
+    # -- stats and state -----------------------------------------------------------------
     def _figures(self, final: bool = False) -> dict:
         frames, first, _ = self.stream_info()
         known = self._source_eos is not None or self.is_source
         figures = self.ledger.figures(final=final, expected=frames if known else None, first=first)
         figures["order"] = self.ORDER
+        figures["restarts"] = self.incarnation
+        figures["rejected"] = self.rejections.figures()
         figures.update(self.extra_figures())
         return figures
 
@@ -253,17 +437,74 @@ class Worker:
         """Stage-specific figures added to every stats message."""
         return {}
 
-    def _maybe_stats(self) -> None:
-        if time.monotonic() - self._last_stats >= STATS_PERIOD_S:
-            self._publish_stats()
+    def _state_path(self) -> Path | None:
+        out = self.layout.run.out
+        return Path(out) / "state" / f"{self.name}.json" if out else None
 
+    def _save_state(self) -> None:
+        """The ledger and the stage's state, every ``STATE_PERIOD_S``; frames seen and
+        done in between go to an append-only journal (``<name>.frames``), so a worker
+        killed at any moment is restarted with exact frame counts."""
+        path = self._state_path()
+        if path is None:
+            return
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_json(path, {"incarnation": self.incarnation, "ledger": self.ledger.state(),
+                              "rejected": self.rejections.figures(), "stage": self.extra_state()}, indent=None)
+            if self._journal_fd is None:
+                self._journal_fd = os.open(path.with_suffix(".frames"), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            os.ftruncate(self._journal_fd, 0)   # everything in it is in the state now
+        except OSError as exc:   # a full disk must not kill the stage; the recorder reports it
+            self.log.debug("cannot save state: %s", exc)
+        self._last_state = time.monotonic()
+
+    def _journal(self, kind: str, frame: int) -> None:
+        if self._journal_fd is not None:
+            try:
+                os.write(self._journal_fd, f"{kind}{frame}\n".encode())
+            except OSError:
+                pass
+
+    def _restore_state(self) -> None:
+        path = self._state_path()
+        if path is None or not path.is_file():
+            return
+        try:
+            state = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return
+        self.incarnation = int(state.get("incarnation", 0)) + 1
+        journal = []
+        try:
+            for line in path.with_suffix(".frames").read_text(encoding="ascii", errors="replace").splitlines():
+                if line[:1] in ("i", "o") and line[1:].isdigit():
+                    journal.append((line[0], int(line[1:])))
+        except OSError:
+            pass
+        self.ledger.restore(state.get("ledger") or {}, journal)
+        self.rejections.restore(state.get("rejected"))
+        self.ledger.bad_messages = self.rejections.total
+        self.restore_state(state.get("stage") or {})
+        self.log.warning("restarted (incarnation %d): carrying on from frame %d", self.incarnation,
+                         self.ledger.last_frame)
+
+    def _periodic(self) -> None:
+        now = time.monotonic()
+        if now - self._last_stats >= STATS_PERIOD_S:
+            self._publish_stats()
+        if now - self._last_state >= STATE_PERIOD_S:
+            self._save_state()
+
+    # -- the loops -------------------------------------------------------------------------
     def _ended(self) -> bool:
         """Every upstream worker has ended and nothing came for ``END_GRACE_S`` since:
         data and end of stream travel on different keys, so the last data may trail."""
-        if not self._wait_for or len(self._upstream_done) < len(self._wait_for) or self.inbox.pending():
+        now = time.monotonic()
+        if (not self._wait_for or self.inbox.pending()
+                or not all(self._upstream_ended(n, now) for n in self._wait_for)):
             self._quiet_since = None
             return False
-        now = time.monotonic()
         if self._quiet_since is None:
             self._quiet_since = now
         return now - self._quiet_since >= END_GRACE_S
@@ -274,26 +515,21 @@ class Worker:
             item = self.inbox.get(timeout=0.05)
             if item is not None:
                 key, sample = item
-                try:
-                    msg = decode_sample(sample)
-                except MessageError as exc:
-                    self.ledger.bad_message()
-                    self.log.warning("skipping malformed message on %s: %s", key, exc)
+                msg = self._admit(key, sample)
+                if msg is None:
                     continue
-                if self.ACCEPTS and not isinstance(msg, self.ACCEPTS):
-                    self.ledger.bad_message()
-                    self.log.warning("skipping a %s on %s", type(msg).__name__, key)
-                    continue
+                self._epoch = msg.epoch
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()
                 self.handle(key, msg)
                 self.ledger.processed(time.perf_counter() - t0, msg.frame)
                 if self._ack is not None and self.ledger.newest_out > self._acked:
                     self._acked = self.ledger.newest_out  # the newest frame this stage has put out
-                    self._ack.put(Ack(frame=self._acked, stamp=msg.stamp, worker=self.name))
+                    self._ack.put(Ack(frame=self._acked, stamp=msg.stamp, worker=self.name, epoch=msg.epoch))
             elif self._ended():
+                self.input_ended = True
                 break
-            self._maybe_stats()
+            self._periodic()
             self.tick()
 
     def _loop_source(self) -> None:
@@ -302,26 +538,35 @@ class Worker:
             self._idle = 0.0
             more = self.produce()
             self.ledger.processed(time.perf_counter() - t0 - self._idle)
-            self._maybe_stats()
+            self._periodic()
             self.tick()
             if not more:
+                self.input_ended = True
                 break
+        if self._signal == signal.SIGINT:
+            self.input_ended = True   # a source asked to stop: its input has ended
 
     def run(self) -> int:
         """Run the worker until its stream ends or it is told to stop; the exit code."""
         self._install_signals()
+        self._watch_launcher()
         self.session = open_session(self.layout.bus.for_worker())
         try:
             self._wait_for = set(self.upstream())
+            self._seed_ended()
+            self._restore_state()
+            self._save_state()
+            self._subs.append(self.session.liveliness().declare_subscriber(
+                self.keys.alive(), self._on_liveliness, history=True))
             self.setup()
             for key in self.subscriptions():
                 self._subs.append(self.session.declare_subscriber(key, self._on_sample))
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             if "stats" in self.CONSUMES:
                 self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
-            # an unpaced source sends frames as fast as the stages acknowledge them
+            # an unpaced or offline source sends frames as fast as the stages acknowledge them
             self._ack, self._acked = None, -1
-            if not self.layout.run.pace and self.ORDER and self.PRODUCES:
+            if (self.lossless or not self.layout.run.pace) and self.ORDER and self.PRODUCES:
                 self._ack = Publisher(self.session, self.keys.ack(self.name), droppable=False)
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
             self.log.info("ready (%s)", ", ".join(self.subscriptions()) or "source")
@@ -329,9 +574,14 @@ class Worker:
                 self._loop_source()
             else:
                 self._loop_filter()
-            self.flush()
+            if self.input_ended:
+                self.flush()
         finally:
             self._finish()
+        if self._signal is not None and not self.input_ended:
+            why = {signal.SIGTERM: "SIGTERM", signal.SIGINT: "SIGINT"}.get(self._signal, "its launcher is gone")
+            self.log.warning("stopped (%s) before its input ended; no end of stream sent", why)
+            self.exit_code = EXIT_TERMINATED
         return self.exit_code
 
     def _write_trace(self) -> None:
@@ -350,22 +600,27 @@ class Worker:
             self.close()
             self._write_trace()
         finally:
+            self._save_state()
             if self.session is not None and not self.session.is_closed():
                 try:
                     figures = self._figures(final=True)
-                    if self.PRODUCES:  # the end of stream carries the final figures
+                    figures["ended"] = self.input_ended
+                    stats = Stats(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
+                                  stage=self.stage, final=True, figures=figures)
+                    self._control_pub(self.keys.stats(self.name)).put(stats)
+                    if self.PRODUCES and self.input_ended:   # only an ended input ends the stream
                         frames, first, fps = self.stream_info()
                         self._control_pub(self.keys.eos(self.name)).put(
                             EndOfStream(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
-                                        stage=self.stage, frames=frames, first=first, fps=fps, figures=figures))
-                    else:
-                        self._control_pub(self.keys.stats(self.name)).put(
-                            Stats(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
-                                  stage=self.stage, final=True, figures=figures))
+                                        stage=self.stage, frames=frames, first=first, fps=fps, figures=figures,
+                                        epoch=self._epoch))
                     time.sleep(0.2)  # let the last messages leave before the session closes
                 finally:
                     for s in self._subs:
-                        s.undeclare()
+                        try:
+                            s.undeclare()
+                        except Exception:  # noqa: BLE001 - closing anyway
+                            pass
                     if self._token is not None:
                         self._token.undeclare()
                     self.session.close()

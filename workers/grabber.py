@@ -1,9 +1,16 @@
-"""Camera grabber: publishes every camera's frame with its index and capture time.
+"""Camera grabber: publishes every camera's frame with its index, capture time, epoch
+and frame set (the cameras sent for that index).
 
-Reads a recording folder as if live (paced at its fps, or as fast as the pipeline
-takes it with ``--no-pace``) or live cameras through ``cv2.VideoCapture``. Before the
-first frame it waits until every worker of the layout is alive, so no stage misses
-the start of the stream.
+Reads a recording folder as if live, or live cameras through ``cv2.VideoCapture``.
+Before the first frame it waits until every worker of the layout is alive, so no
+stage misses the start of the stream.
+
+Offline (a recording) the grabber never runs ahead of the pipeline: it holds frame
+``i`` until every stage that is alive has put out frame ``i - window`` (paced runs
+also keep the recording's clock), so no stage ever drops a frame and the results do
+not depend on machine load. A stage that has left the bus (crashed) is not waited
+for until it is back. A restarted grabber carries on after the last frame it sent,
+in a new epoch. Live cameras are paced by the cameras themselves.
 """
 from __future__ import annotations
 
@@ -25,69 +32,96 @@ class Grabber(Worker):
         "cameras": "all",        # cameras this grabber reads (a list, or all)
         "start": 0,              # first frame of a recording
         "ready_timeout": 60.0,   # seconds to wait for the other workers before starting anyway
-        "window": 2,             # --no-pace: frames in flight beyond the slowest stage's last one
-        "ack_timeout": 1.0,      # --no-pace: longest wait for a stage's acknowledgement
+        "window": 2,             # offline: frames in flight beyond the slowest stage's last one
+        "open_timeout": 10.0,    # live: seconds for a camera to deliver its first image
+        "skip_bad_frames": False,  # a recording's undecodable frames: stop with an error, or skip them
     }
+    RANGES = {"start": (0, 1 << 40), "ready_timeout": (0.0, 3600.0), "window": (1, 64),
+              "open_timeout": (0.5, 600.0)}
 
     def setup(self) -> None:
         run = self.layout.run
         cams = self.cameras()
+        self.epoch = time.time_ns() // 1_000_000     # a new epoch per incarnation
+        self._epoch = self.epoch
+        self.lost: dict[str, int] = {}
         if run.live:
             if not run.calibration:
                 raise InputError("live cameras need a calibration file (--calibration)")
             live = {c: s for c, s in run.live.items() if cams is None or c in cams}
-            self.source = LiveSource(live, load_calibration(run.calibration), frames=run.frames)
+            self.source = LiveSource(live, load_calibration(run.calibration), frames=run.frames,
+                                     stop=self.stop_event, open_timeout=self.params["open_timeout"])
+            self.first = 0
         else:
             if not run.recording:
                 raise InputError("the grabber has no recording and no live cameras")
-            self.source = RecordingSource(run.recording, cams, start=self.params["start"], frames=run.frames)
+            first = self.params["start"]
+            resume = max(first, self._resume) if self._resume is not None else first
+            total = RecordingSource(run.recording, cams, start=first, frames=run.frames).stop
+            self.source = RecordingSource(run.recording, cams, start=min(resume, total - 1),
+                                          frames=max(0, total - resume), skip_bad=self.params["skip_bad_frames"],
+                                          lost=self.lost)
+            self.first = first
+            self.total = total - first
+            if resume >= total:
+                self.source = None   # everything was sent before the restart
         self._frames = None
         self._acks: dict[str, int] = {}
         self._ack_cond = threading.Condition()
-        self.produced = 0
-        self.first = self.source.start
         self.t0 = None
 
+    # -- across restarts -------------------------------------------------------------
+    _resume: int | None = None
+    produced = 0
+
+    def extra_state(self) -> dict:
+        return {"next": self.ledger.newest_out + 1, "produced": self.produced}
+
+    def restore_state(self, state: dict) -> None:
+        if isinstance(state.get("next"), int) and not self.layout.run.live:
+            self._resume = state["next"]
+        if isinstance(state.get("produced"), int):
+            self.produced = state["produced"]
+
+    # -- frames ------------------------------------------------------------------------
     def _wait_until_ready(self) -> None:
         others = {w.name for w in self.layout.workers if w.name != self.name}
         if self.layout.run.headless:
             from workers import worker_class
             others = {n for n in others if not worker_class(self.layout.worker(n).kind).DISPLAY}
-        alive: set[str] = set()
-
-        def seen(sample):
-            alive.add(self.keys.last(sample.key_expr))
-
-        sub = self.session.liveliness().declare_subscriber(self.keys.alive(), seen, history=True)
         deadline = time.monotonic() + self.params["ready_timeout"]
-        while not others <= alive and time.monotonic() < deadline and not self.stopping:
+        while not others <= self.alive and time.monotonic() < deadline and not self.stopping:
             time.sleep(0.02)
-        sub.undeclare()
-        if not others <= alive:
+        if not others <= self.alive:
             self.log.warning("starting without %s (not alive after %.0f s)",
-                             ", ".join(sorted(others - alive)), self.params["ready_timeout"])
+                             ", ".join(sorted(others - self.alive)), self.params["ready_timeout"])
 
     def produce(self) -> bool:
+        if self.source is None:
+            return False
         if self._frames is None:
             self._frames = iter(self.source.frames())
-            t0 = time.perf_counter()
-            self._wait_until_ready()
-            self._idle += time.perf_counter() - t0
+            if self.incarnation == 0:
+                t0 = time.perf_counter()
+                self._wait_until_ready()
+                self._idle += time.perf_counter() - t0
         try:
             index, images = next(self._frames)
         except StopIteration:
             return False
-        if self.source.live:
-            pass
-        elif self.layout.run.pace:
-            self._pace(index)
-        else:
+        if self.lossless:
             self._wait_for_acks(index)
+            if self.layout.run.pace:
+                self._pace(index)
+        if self.stopping:
+            return False
         stamp = time.time()
         self.ledger.received(index, stamp)
         t = index / self.source.fps
+        cameras = sorted(images)
         for cam, image in images.items():
-            self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, image=image))
+            self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
+                                                     image=image, epoch=self.epoch))
         self.produced += 1
         return True
 
@@ -100,29 +134,47 @@ class Grabber(Worker):
 
     def _on_ack(self, sample) -> None:
         from app.bus import decode_sample
+        from app.messages import Ack, MessageError
         try:
             msg = decode_sample(sample)
-        except Exception:  # noqa: BLE001 - flow control must not die on a bad message
+            msg.validate()
+        except MessageError:
+            self.reject(str(sample.key_expr), "malformed")
+            return
+        if not isinstance(msg, Ack) or msg.worker not in self._ack_names or msg.epoch != self.epoch:
+            self.reject(str(sample.key_expr), "acknowledgement of another stream")
             return
         with self._ack_cond:
             self._acks[msg.worker] = max(msg.frame, self._acks.get(msg.worker, -1))
             self._ack_cond.notify_all()
 
     def _wait_for_acks(self, index: int) -> None:
-        """Unpaced reading: hold frame ``index`` until every stage has acknowledged frame
-        ``index - window`` (or ``ack_timeout`` passed: a stage may have died)."""
+        """Hold frame ``index`` until every stage that is alive has put out frame
+        ``index - window``. A stage that comes back after a crash starts level with
+        the stream (it cannot acknowledge frames that were sent while it was away)."""
         if not hasattr(self, "_ack_sub"):
             self._ack_names = self._filters()
             self._ack_sub = self.session.declare_subscriber(self.keys.ack(), self._on_ack)
+            self._was_alive = set(self.alive)
         need = index - self.params["window"]
         t0 = time.perf_counter()
-        deadline = time.monotonic() + self.params["ack_timeout"]
+        next_note = time.monotonic() + 10.0
         with self._ack_cond:
-            while not self.stopping and any(self._acks.get(n, -1) < need for n in self._ack_names):
-                left = deadline - time.monotonic()
-                if left <= 0:
+            while not self.stopping:
+                alive = set(self.alive)
+                if alive - self._was_alive:
+                    # a stage came back after a crash: the frames it missed will not come
+                    # through it, so the stages after it cannot acknowledge them either
+                    for n in self._ack_names:
+                        self._acks[n] = max(self._acks.get(n, -1), index - 1)
+                self._was_alive = alive
+                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < need]
+                if not waiting:
                     break
-                self._ack_cond.wait(left)
+                if time.monotonic() > next_note:
+                    next_note = time.monotonic() + 10.0
+                    self.log.warning("frame %d waits for %s to finish frame %d", index, ", ".join(waiting), need)
+                self._ack_cond.wait(0.05)
         self._idle += time.perf_counter() - t0
 
     def _pace(self, index: int) -> None:
@@ -131,18 +183,28 @@ class Grabber(Worker):
         that skipped would)."""
         now = time.monotonic()
         if self.t0 is None:
-            self.t0 = now
-        due = self.t0 + (index - self.first) / self.source.fps
+            self.t0 = now - (index - self.source.start) / self.source.fps
+        due = self.t0 + (index - self.source.start) / self.source.fps
         if now - due > 1.0 / self.source.fps:
             self.t0 += now - due
         elif due > now:
             self.sleep(due - now)
 
     def stream_info(self) -> tuple[int, int, float]:
-        return self.produced, self.first, self.source.fps
+        fps = self.source.fps if self.source is not None else (self.layout.run.fps or 0.0)
+        return self.produced, self.first, fps
 
     def extra_figures(self) -> dict:
-        return {"fps_recording": self.source.fps, "expected_frames": self.source.expected}
+        figures = {"fps_recording": self.stream_info()[2], "epoch": getattr(self, "epoch", 0)}
+        source = getattr(self, "source", None)
+        if source is not None:
+            figures["expected_frames"] = getattr(self, "total", source.expected)
+            failed = getattr(source, "failed", None)
+            if failed:
+                figures["cameras_failed"] = sorted(failed)
+        if getattr(self, "lost", None):
+            figures["views_lost"] = dict(self.lost)
+        return figures
 
     def close(self) -> None:
         if getattr(self, "source", None) is not None:

@@ -1,11 +1,19 @@
 """Reconstruction worker: shape from silhouette, voxel colouring and surface voxels
 (thesis §2.2.4) from every camera's mask of one frame.
 
-Masks arrive per camera; the worker assembles them by frame index and reconstructs a
-frame once every live camera's mask is in, or after ``wait_ms`` with what it has (the
-tolerance of shape from silhouette covers a missing view: it lowers ``N_visible``),
-or as soon as a newer frame is complete (older incomplete frames are dropped and
-counted). A camera silent for ``camera_timeout_s`` is not waited for until it is back.
+Masks arrive per camera and are assembled by frame index. Each mask carries the frame
+set (the cameras the grabber sent for that index), so the worker knows which views a
+frame has. A frame is reconstructed, in frame order, once every camera of its set has
+delivered, except cameras whose segmentation worker has left the bus (crashed):
+
+- offline (a recording) there is no other reason to give up on a view, so two runs
+  give the same voxels on an idle and on a loaded machine;
+- live, a view may also be given up after ``wait_ms`` (a camera is waited for from its
+  first mask on, and stops being waited for after ``camera_timeout_s`` of its own
+  silence); every view given up is counted per camera (``late``).
+
+A frame with fewer than ``min_views`` cameras is dropped and counted, never published
+empty. Each published frame names the cameras it was built from (``Voxels.cameras``).
 The projection tables are built at start-up for the mask and colour sizes the
 layout's segmentation workers produce, so the first frame is as fast as the others.
 """
@@ -20,7 +28,8 @@ from app.messages import Mask, Voxels
 from app.segmentation import working_size
 from workers.base import Worker
 
-MAX_BACKLOG = 3   # frames ready at once beyond which the stage is behind and skips to the newest
+MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
+STALL_S = 30.0    # offline safety net: a view this late is given up (and counted) all the same
 
 
 class Reconstruction(Worker):
@@ -41,6 +50,10 @@ class Reconstruction(Worker):
         "cache": False,              # keep projection tables on disk between runs (~140 MB at 2 cm)
         "min_top": 0.25,             # drop blobs lower than this (m): floor shadows; 0 = thesis (keep all)
     }
+
+    RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
+              "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0)}
+    CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none")}
 
     def setup(self) -> None:
         from app.reconstruction import Reconstructor
@@ -68,13 +81,33 @@ class Reconstruction(Worker):
         self.calibration = calib
         self.names = list(calib.names)
         self.mask_sizes, self.colour_sizes = mask_sizes, colour_sizes
-        self.pending: dict[int, dict] = {}     # frame -> {"first": t, "masks": {cam: Mask}}
-        self.last_seen = {n: time.monotonic() for n in self.names}
+        self.pending: dict[int, dict] = {}     # frame -> {"first": t, "masks": {cam: Mask}, "expected": set}
+        self.last_seen: dict[str, float] = {}  # camera -> its latest mask (live silence), from its first mask on
+        self.newest_mask: dict[str, int] = {}  # camera -> its newest frame: a camera's masks come in order
+        self.producers = self._producers()
+        self.epoch: int | None = None
         self.newest_done = -1
+        self.late = {n: 0 for n in self.names}  # views given up on, per camera
+        self.too_few_views = 0                   # frames dropped for fewer than min_views cameras
+        self.partial_frames = 0                  # frames built without a camera of their set
         self.timings: dict[str, list] = {}
         self.occupied: list[int] = []
         self.log.info("grid %s at %.3f m, tables %.0f MB built in %.0f ms", self.reconstructor.grid.dims,
                       p["voxel_size"], self.reconstructor.table_bytes / 1e6, self.reconstructor.build_ms)
+
+    def _producers(self) -> dict[str, set]:
+        """Camera -> the workers of the layout that publish its masks."""
+        from workers import worker_class
+
+        out: dict[str, set] = {n: set() for n in self.names}
+        for w in self.layout.workers:
+            if "mask" not in worker_class(w.kind).PRODUCES:
+                continue
+            cams = w.params.get("cameras")
+            for n in self.names:
+                if cams in (None, "all") or n in cams:
+                    out[n].add(w.name)
+        return out
 
     def _expected_sizes(self, calib):
         """Mask and colour sizes per camera, from the segmentation workers of the layout."""
@@ -95,44 +128,75 @@ class Reconstruction(Worker):
         return masks, colours
 
     # -- assembly ---------------------------------------------------------------------
+    def admit(self, key: str, msg: Mask) -> str | None:
+        if msg.camera not in self.late:
+            return "unknown camera"
+        if (msg.width, msg.height) != self.mask_sizes.get(msg.camera, (msg.width, msg.height)):
+            return f"mask {msg.width}x{msg.height} does not match the tables {self.mask_sizes.get(msg.camera)}"
+        return None
+
     def handle(self, key: str, msg: Mask) -> None:
-        if msg.camera not in self.last_seen:
-            self.log.warning("ignoring a mask of unknown camera %r", getattr(msg, "camera", None))
-            return
         now = time.monotonic()
+        if self.epoch is None or msg.epoch > self.epoch:
+            if self.pending:
+                self.log.warning("the source restarted (epoch %d): %d unfinished frames of the old one given up",
+                                 msg.epoch, len(self.pending))
+            self.epoch, self.pending, self.newest_done, self.newest_mask = msg.epoch, {}, -1, {}
+        elif msg.epoch < self.epoch:
+            return
         self.last_seen[msg.camera] = now
+        self.newest_mask[msg.camera] = max(msg.frame, self.newest_mask.get(msg.camera, -1))
         if msg.frame <= self.newest_done:
-            return  # late: that frame was already reconstructed or given up
-        entry = self.pending.setdefault(msg.frame, {"first": now, "masks": {}})
+            self.late[msg.camera] += 1   # its frame was built (or given up) without it
+            return
+        entry = self.pending.get(msg.frame)
+        if entry is None:
+            expected = set(msg.cameras) & set(self.names) or set(self.names)
+            entry = self.pending[msg.frame] = {"first": now, "masks": {}, "expected": expected, "frame": msg.frame}
         entry["masks"][msg.camera] = msg
         self._decide(now)
 
-    def _live_cameras(self, now: float) -> set[str]:
-        timeout = self.params["camera_timeout_s"]
-        return {n for n, t in self.last_seen.items() if now - t <= timeout}
+    def _missing(self, entry: dict, now: float) -> set[str]:
+        """Cameras of the frame's set still worth waiting for."""
+        missing = entry["expected"] - set(entry["masks"])
+        # a camera whose every segmentation worker has left the bus sends nothing more, and
+        # one that has sent a later frame will not send this one (a camera's masks come in order)
+        missing = {c for c in missing if (not self.producers.get(c) or self.producers[c] & self.alive)
+                   and self.newest_mask.get(c, -1) < entry["frame"]}
+        if not self.lossless:   # live: a camera silent for long is not waited for
+            timeout = self.params["camera_timeout_s"]
+            missing = {c for c in missing if c not in self.last_seen or now - self.last_seen[c] <= timeout}
+        return missing
 
     def _decide(self, now: float, final: bool = False) -> None:
-        """Reconstruct the frames that are complete or waited long enough, and the older
-        ones still pending, oldest first; when more than ``MAX_BACKLOG`` are ready the
-        stage is behind: only the newest is reconstructed and the older ones are dropped
-        (counted by the ledger)."""
-        if not self.pending:
-            return
-        live = self._live_cameras(now)
+        """Reconstruct the pending frames in order while the oldest has every view it
+        can get; live, also once it has waited ``wait_ms`` or a newer frame is complete."""
         wait = self.params["wait_ms"] / 1e3
-        complete = [f for f, e in self.pending.items()
-                    if final or set(e["masks"]) >= live or now - e["first"] >= wait]
-        if not complete:
-            return
-        # frames older than a ready one will not get more masks in time: take them too,
-        # in order (a missing view only lowers N_visible)
-        ready = sorted(f for f in self.pending if f <= max(complete))
-        if len(ready) > MAX_BACKLOG and not final:
-            for f in ready[:-1]:
-                del self.pending[f]   # behind: only the newest (the others count as dropped)
-            ready = ready[-1:]
-        for frame in ready:
-            self._reconstruct(frame, self.pending.pop(frame)["masks"])
+        if not self.lossless and not final:
+            complete = [f for f, e in self.pending.items() if not self._missing(e, now)]
+            if len(self.pending) > MAX_BACKLOG and complete:
+                newest = max(complete)   # behind: skip to the newest complete frame
+                for f in [f for f in self.pending if f < newest][:-MAX_BACKLOG]:
+                    del self.pending[f]  # (counted as dropped by the ledger)
+        while self.pending:
+            frame = min(self.pending)
+            entry = self.pending[frame]
+            missing = set() if final else self._missing(entry, now)
+            if missing:
+                waited = now - entry["first"]
+                newer_complete = not self.lossless and any(
+                    not self._missing(e, now) for f, e in self.pending.items() if f > frame)
+                if self.lossless and waited < STALL_S:
+                    return
+                if not self.lossless and waited < wait and not newer_complete:
+                    return
+                if self.lossless:
+                    self.log.warning("frame %d: no mask from %s after %.0f s; going on without", frame,
+                                     ", ".join(sorted(missing)), waited)
+            del self.pending[frame]
+            for c in entry["expected"] - set(entry["masks"]):
+                self.late[c] += 1
+            self._reconstruct(frame, entry["masks"], partial=entry["expected"] - set(entry["masks"]))
 
     def tick(self) -> None:
         if self.pending:
@@ -142,16 +206,20 @@ class Reconstruction(Worker):
         self._decide(time.monotonic(), final=True)
 
     # -- one frame ----------------------------------------------------------------------
-    def _reconstruct(self, frame: int, masks: dict) -> None:
+    def _reconstruct(self, frame: int, masks: dict, partial: set) -> None:
         self.newest_done = max(self.newest_done, frame)
+        if len(masks) < self.params["min_views"]:
+            self.too_few_views += 1
+            if self.too_few_views in (1, 10, 100) or self.too_few_views % 1000 == 0:
+                self.log.warning("frame %d: only %d camera(s) (%s), fewer than min_views %d; dropped (%d so far)",
+                                 frame, len(masks), ", ".join(sorted(masks)) or "none", self.params["min_views"],
+                                 self.too_few_views)
+            return
+        if partial:
+            self.partial_frames += 1
         mask_arrays, images = {}, {}
         for cam, m in masks.items():
-            arr = m.unpack()
-            if (arr.shape[1], arr.shape[0]) != self.mask_sizes.get(cam, (m.width, m.height)):
-                self.log.warning("camera %s: mask %dx%d does not match the tables %s; skipped",
-                                 cam, arr.shape[1], arr.shape[0], self.mask_sizes.get(cam))
-                continue
-            mask_arrays[cam] = arr
+            mask_arrays[cam] = m.unpack()
             if m.colour is not None and m.colour.size and cam in self.colour_sizes:
                 images[cam] = m.colour
         indices, colours, surface, timings = self.reconstructor.reconstruct(mask_arrays, images)
@@ -169,4 +237,7 @@ class Reconstruction(Worker):
         recent = {k: v[-50:] for k, v in getattr(self, "timings", {}).items()}
         occ = getattr(self, "occupied", [])[-50:]
         return {"step_ms": {k: round(float(np.mean(v)), 3) for k, v in recent.items() if v},
-                "occupied_voxels": int(np.mean(occ)) if occ else 0}
+                "occupied_voxels": int(np.mean(occ)) if occ else 0,
+                "late_views": {c: n for c, n in getattr(self, "late", {}).items() if n},
+                "frames_too_few_views": getattr(self, "too_few_views", 0),
+                "frames_partial": getattr(self, "partial_frames", 0)}

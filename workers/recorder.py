@@ -1,23 +1,30 @@
 """Recorder: writes the contract's result files (CONTRACT §2).
 
-``tracks.jsonl`` and ``poses.jsonl`` are written line by line into ``.partial`` files
-and renamed when the run ends (in frame order); a file exists only when the layout
-has a stage that produces it. ``stats.json`` is rewritten atomically (write, then
-rename) once a second and completed at the end with every stage's final figures and
-the pipeline real-time factor. With ``voxels: true`` the reconstruction is kept too,
-in ``voxels.bin`` (see :mod:`app.results`), for evaluation and replay.
+``tracks.jsonl`` and ``poses.jsonl`` are written line by line (each line reaches the
+operating system at once) into ``.partial`` files and renamed at the true end of the
+run, in frame order; a file exists only when the layout has a stage that produces it.
+With ``voxels: true`` the reconstruction is kept too, in ``voxels.bin`` (see
+:mod:`app.results`), for evaluation and replay.
+
+Results survive their writer (DESIGN §5): a restarted recorder appends to what its
+earlier incarnation wrote, after cutting a record the crash left half-written, and
+skips frames already written (a restarted source may send a frame again). The files
+are renamed only when the stream has truly ended. A full disk stops the recorder
+with a one-line error; its files stay valid up to the last complete record.
+
+``stats.json`` is the launcher's (it knows about restarts and failures).
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
-import time
 from pathlib import Path
 
-from app.files import partial_path, write_json
-from app.messages import JOINTS, Poses, Stats, Tracks, Voxels
+from app.errors import InputError
+from app.files import partial_path
+from app.messages import JOINTS, Poses, Tracks, Voxels
 from app.results import VoxelWriter
-from app.stats import summarise
 from workers import worker_class
 from workers.base import Worker
 
@@ -26,26 +33,49 @@ def _r(v, nd=4):
     return [round(float(x), nd) for x in v]
 
 
-class _JsonLines:
-    """Lines written to ``<name>.partial``, renamed (sorted by frame if needed) on close."""
+class JsonLinesWriter:
+    """Lines appended to ``<name>.partial`` (resumed after a crash), renamed, sorted by
+    frame if needed, by :meth:`close` with ``final=True``."""
 
     def __init__(self, path: Path):
         self.path = path
         self.tmp = partial_path(path)
-        self.fh = open(self.tmp, "w", encoding="utf-8")
-        self.last_frame = -1
+        self.frames: set[int] = set()
         self.ordered = True
-        self.lines = 0
+        self.last_frame = -1
+        keep = 0
+        if self.tmp.exists():   # an earlier incarnation's lines: keep every complete one
+            with open(self.tmp, "rb") as fh:
+                for line in fh:
+                    if not line.endswith(b"\n"):
+                        break
+                    try:
+                        frame = json.loads(line)["frame"]
+                    except (ValueError, KeyError, TypeError):
+                        break
+                    self._note(frame)
+                    keep += len(line)
+            os.truncate(self.tmp, keep)
+        self.fh = open(self.tmp, "a", encoding="utf-8", buffering=1)
 
-    def write(self, frame: int, record: dict) -> None:
+    def _note(self, frame: int) -> None:
         if frame <= self.last_frame:
             self.ordered = False
         self.last_frame = max(self.last_frame, frame)
-        self.fh.write(json.dumps(record, separators=(",", ":")) + "\n")
-        self.lines += 1
+        self.frames.add(frame)
 
-    def close(self) -> None:
+    def write(self, frame: int, record: dict) -> bool:
+        """Append one frame's record; False when that frame is already in the file."""
+        if frame in self.frames:
+            return False
+        self.fh.write(json.dumps(record, separators=(",", ":")) + "\n")
+        self._note(frame)
+        return True
+
+    def close(self, final: bool) -> None:
         self.fh.close()
+        if not final:
+            return
         if not self.ordered:
             with open(self.tmp, encoding="utf-8") as fh:
                 rows = {json.loads(line)["frame"]: line for line in fh if line.strip()}
@@ -69,56 +99,59 @@ class Recorder(Worker):
 
     def setup(self) -> None:
         if not self.layout.run.out:
-            from app.errors import InputError
             raise InputError("the recorder needs an output folder (--out)")
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
         produced = {s for w in self.layout.workers for s in worker_class(w.kind).PRODUCES}
-        self.tracks = _JsonLines(self.out / "tracks.jsonl") if "tracks" in produced else None
-        self.poses = _JsonLines(self.out / "poses.jsonl") if "poses" in produced else None
+        self.tracks = JsonLinesWriter(self.out / "tracks.jsonl") if "tracks" in produced else None
+        self.poses = JsonLinesWriter(self.out / "poses.jsonl") if "poses" in produced else None
         self.voxels = VoxelWriter(self.out / "voxels.bin") if self.params["voxels"] and "voxels" in produced else None
-        self.stages: dict[str, dict] = {}
-        self._last_write = 0.0
+        self.duplicates = 0
+        resumed = [f.path.name for f in self._files() if f.frames]
+        if resumed:
+            self.log.warning("carrying on %s after a restart", ", ".join(resumed))
+
+    def _files(self):
+        return [f for f in (getattr(self, "tracks", None), getattr(self, "poses", None),
+                            getattr(self, "voxels", None)) if f is not None]
 
     def handle(self, key: str, msg) -> None:
+        try:
+            written = self._write(msg)
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise InputError(f"{self.out}: disk full after frame {self.ledger.newest_out}; "
+                                 "the result files are valid up to it") from None
+            raise
+        if written:
+            self.ledger.emitted(msg.frame, msg.stamp)
+        elif written is False:
+            self.duplicates += 1
+
+    def _write(self, msg) -> bool | None:
         if isinstance(msg, Tracks) and self.tracks is not None:
-            self.tracks.write(msg.frame, {
+            return self.tracks.write(msg.frame, {
                 "frame": int(msg.frame), "t": round(msg.t, 4),
                 "tracks": [{"id": int(i), "position": _r(p)} for i, p in zip(msg.ids, msg.positions)]})
-        elif isinstance(msg, Poses) and self.poses is not None:
+        if isinstance(msg, Poses) and self.poses is not None:
             poses = []
             for k, track in enumerate(msg.tracks):
                 poses.append({
                     "track": int(track),
                     "joints": {j: _r(msg.joints[k, n]) for n, j in enumerate(JOINTS)},
                     "active": {j: bool(msg.active[k, n]) for n, j in enumerate(JOINTS)}})
-            self.poses.write(msg.frame, {"frame": int(msg.frame), "t": round(msg.t, 4), "poses": poses})
-        elif isinstance(msg, Voxels) and self.voxels is not None:
-            self.voxels.write(msg)
-        else:
-            return
-        self.ledger.emitted(msg.frame, msg.stamp)
+            return self.poses.write(msg.frame, {"frame": int(msg.frame), "t": round(msg.t, 4), "poses": poses})
+        if isinstance(msg, Voxels) and self.voxels is not None:
+            return self.voxels.write(msg)
+        return None
 
-    def on_stats(self, msg: Stats) -> None:
-        if msg.worker == self.name:
-            return
-        self.stages[msg.worker] = {"stage": msg.stage, "order": msg.figures.get("order"),
-                                   "final": msg.final, "figures": msg.figures}
-        if time.monotonic() - self._last_write > 1.0:
-            self.write_stats()
-
-    def write_stats(self, final: bool = False) -> None:
-        frames, _, fps = self.stream_info()
-        fps = fps or self.layout.run.fps or 0.0
-        summary = summarise(self.stages, fps, frames if self.stream is not None else None)
-        summary["complete"] = final
-        summary["workers"] = {name: s["figures"] for name, s in self.stages.items()}
-        write_json(self.out / "stats.json", summary)
-        self._last_write = time.monotonic()
+    def extra_figures(self) -> dict:
+        return {"duplicates_skipped": getattr(self, "duplicates", 0),
+                "files": {f.path.name: len(f.frames) for f in self._files()}}
 
     def close(self) -> None:
-        for f in (self.tracks, self.poses, getattr(self, "voxels", None)):
-            if f is not None:
-                f.close()
-        if hasattr(self, "out"):
-            self.write_stats(final=True)
+        for f in self._files():
+            try:
+                f.close(final=self.input_ended)
+            except OSError as exc:
+                self.log.error("%s: %s", f.path, exc)

@@ -59,6 +59,7 @@ class Segmentation(Worker):
         self.recording = Recording(run.recording) if run.recording else None
         calib = self.recording.calibration if self.recording else (load_calibration(run.calibration)
                                                                     if run.calibration else None)
+        self.known_cameras = list(calib.names) if calib is not None else None
         for cam in self.cameras() or []:
             if calib is not None:
                 calib.camera(cam)  # an unknown camera is a one-line error
@@ -87,6 +88,14 @@ class Segmentation(Worker):
             seg = self.segmenters[cam] = CameraSegmenter(self.seg_params, self._background(cam))
         return seg
 
+    def admit(self, key: str, msg: Frame) -> str | None:
+        """Only the cameras of the calibration (and of this worker, when it has a list)."""
+        mine = self.cameras()
+        known = self.known_cameras
+        if (mine is not None and msg.camera not in mine) or (known is not None and msg.camera not in known):
+            return "unknown camera"
+        return None
+
     def handle(self, key: str, msg: Frame) -> None:
         seg = self._segmenter(msg.camera)
         mask = seg.apply(msg.image)
@@ -98,4 +107,4 @@ class Segmentation(Worker):
             colour = shrink(msg.image, scale)
         self.publish(self.keys.mask(msg.camera),
                      Mask.pack(mask, frame=msg.frame, stamp=msg.stamp, t=msg.t, camera=msg.camera,
-                               colour_scale=max(1, scale), colour=colour))
+                               colour_scale=max(1, scale), colour=colour, cameras=list(msg.cameras)))

@@ -75,7 +75,7 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
     report = {"exit_code": rc, "wall_s": round(wall, 3), "recording_fps": fps_rec, "frames": run.frames,
               "paced": run.pace, "rtf": stats.get("rtf"), "fps": stats.get("fps"),
               "end_to_end_latency_ms": stats.get("end_to_end_latency_ms"), "stages": {}}
-    limiting = stats.get("final_stage")  # the slowest stage sets the pipeline's pace
+    limiting = stats.get("final_stage")  # frames delivered at the end of the pipeline set its pace
     if limiting not in stages:
         limiting = max(stages, key=lambda n: stages[n]["order"]) if stages else None
     for name, s in sorted(stages.items(), key=lambda kv: kv[1]["order"]):
@@ -96,6 +96,8 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
     if limiting is not None:
         report["rtf_over_time"] = _rtf_over_time(stages[limiting]["rows"][:, 3], t0, fps_rec)
         report["final_stage"] = limiting
+    report["bottleneck"] = stats.get("bottleneck")
+    report["delivered_ratio"] = stats.get("delivered_ratio")
     return report
 
 

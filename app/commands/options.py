@@ -68,10 +68,32 @@ def resolve_source(args) -> RunSpec:
         path = default_recording(args.scene, seconds=args.seconds, zenithal=args.zenithal)
     rec = Recording(path)
     frames = rec.frame_count if args.frames is None else min(args.frames, rec.frame_count)
+    if args.frames is not None and args.frames > rec.frame_count:
+        import sys
+        print(f"smartroom: --frames {args.frames}, but {path} has only {rec.frame_count} frames; running "
+              f"{rec.frame_count}", file=sys.stderr)
     return RunSpec(recording=str(Path(path).resolve()), fps=rec.fps, frames=frames, pace=args.pace)
 
 
+RESULT_FILES = ("stats.json", "layout.yaml", "tracks.jsonl", "poses.jsonl", "voxels.bin")
+
+
 def resolve_out(args, prefix: str = "runs") -> Path:
+    """A new (or empty) results folder, created and checked writable: a run never writes
+    over the results of another."""
     out = Path(args.out) if args.out else Path(prefix) / time.strftime("%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    if out.is_dir():
+        held = [f for f in RESULT_FILES if (out / f).exists() or (out / (f + ".partial")).exists()]
+        if held:
+            raise InputError(f"--out {out}: already holds the results of a run ({', '.join(held)}); "
+                             "choose another folder or remove it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write there ({exc.strerror or exc.__class__.__name__})") from None
     return out.resolve()

@@ -10,6 +10,8 @@ from app.commands.options import add_pipeline_arguments, resolve_layout, resolve
 
 def add_arguments(p) -> None:
     add_pipeline_arguments(p)
+    p.add_argument("--linger", action="store_true",
+                   help="keep the viewer up after the stream ends (with the replay of the run) until Ctrl-C")
 
 
 def main(args) -> int:
@@ -21,14 +23,30 @@ def main(args) -> int:
     run.out = str(resolve_out(args))
     run.headless = args.headless
     layout.run = run
+    lingering = args.linger and not args.headless
+    for w in layout.workers:
+        if lingering and w.kind == "viewer":
+            w.params["linger"] = True   # its page reloads into the replay served below
     source = run.recording or ", ".join(f"{c}={s}" for c, s in run.live.items())
-    print(f"smartroom: {len(layout.workers)} workers on {source}; results in {run.out}", file=sys.stderr)
     # the monitor worker, when the layout has one, shows progress itself
     has_monitor = any(w.kind == "monitor" for w in layout.workers)
     progress = None if has_monitor else Progress(run.frames, run.fps)
-    rc = Launcher(layout, verbose=args.verbose, progress=progress).run()
-    stats = Path(run.out) / "stats.json"
-    if stats.is_file():
-        print(summary_table(json.loads(stats.read_text())))
-    print(f"smartroom: results in {run.out}", file=sys.stderr)
+    launcher = Launcher(layout, verbose=args.verbose, progress=progress)
+    here = len(launcher.procs)
+    elsewhere = sum(1 for w in layout.workers if not w.local)
+    print(f"smartroom: {here} workers here" + (f" ({elsewhere} on other hosts)" if elsewhere else "")
+          + f" on {source}; results in {run.out}", file=sys.stderr)
+    try:
+        rc = launcher.run()
+    finally:
+        stats = Path(run.out) / "stats.json"
+        if stats.is_file():
+            summary = json.loads(stats.read_text())
+            print(summary_table(summary))
+            for reason in summary.get("reasons", []):
+                print(f"smartroom: incomplete: {reason}", file=sys.stderr)
+        print(f"smartroom: results in {run.out}", file=sys.stderr)
+    if lingering and rc == 0:
+        from app.commands.view import linger
+        rc = linger(layout, run.out)
     return rc

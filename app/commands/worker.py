@@ -54,6 +54,5 @@ def main(args) -> int:
             d.mkdir(parents=True, exist_ok=True)
             (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
         if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
-            logging.getLogger(f"smartroom.{spec.name}").error("%s", exc)
             return 2
         raise

@@ -1,0 +1,98 @@
+"""What a worker lets in from the bus (DESIGN §5, "the bus is untrusted input").
+
+Every message a worker receives has passed the codec and its type's ``validate()``;
+here the frame numbers are checked against the stream they claim to belong to:
+
+- :class:`FrameWindow` follows one stream (one key) through the source's epochs. A
+  frame number far from the newest one of the current epoch is rejected, never used
+  to size anything. A newer epoch (a source that restarted) is followed once it has
+  shown :data:`EPOCH_CONFIRM` distinct frame numbers close to each other, so one
+  forged message cannot move a stage to a stream that does not exist.
+- :class:`Rejections` counts what was turned away per key and reason and logs it at
+  most once per :data:`LOG_PERIOD_S` per reason, with the count since the last line.
+
+Pure Python, no bus: the worker base owns one of each.
+"""
+from __future__ import annotations
+
+import time
+
+__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM"]
+
+WINDOW = 1000          # frames either side of the newest accepted one (40 s at 25 fps)
+EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch
+LOG_PERIOD_S = 5.0
+
+
+class FrameWindow:
+    """The epoch and newest frame of one stream; :meth:`admit` says whether a frame
+    belongs to it (None) or why not (a short reason)."""
+
+    def __init__(self, window: int = WINDOW):
+        self.window = int(window)
+        self.epoch: int | None = None
+        self.newest = -1
+        self._candidate: tuple[int, set] | None = None   # (epoch, frames seen) of a newer epoch
+
+    def admit(self, epoch: int, frame: int) -> str | None:
+        if frame < 0:
+            return "negative frame"
+        if self.epoch is None:          # the first frame of the stream sets it
+            self.epoch, self.newest = epoch, frame
+            return None
+        if epoch == self.epoch:
+            if abs(frame - self.newest) > self.window:
+                return "frame outside the window"
+            self.newest = max(self.newest, frame)
+            return None
+        if epoch < self.epoch:
+            return "old epoch"
+        # a newer epoch: follow it once it is confirmed by nearby frames
+        cand_epoch, frames = self._candidate if self._candidate and self._candidate[0] == epoch else (epoch, set())
+        if frames and min(abs(frame - f) for f in frames) > self.window:
+            frames = set()
+        frames.add(frame)
+        self._candidate = (cand_epoch, frames)
+        if len(frames) >= EPOCH_CONFIRM:
+            self.epoch, self.newest, self._candidate = epoch, max(frames), None
+            return None
+        return "unconfirmed epoch"
+
+    def state(self) -> dict:
+        return {"epoch": self.epoch, "newest": self.newest}
+
+
+class Rejections:
+    """Messages turned away, per ``(key, reason)``, with rate-limited log lines."""
+
+    def __init__(self, log, clock=time.monotonic):
+        self.log = log
+        self.clock = clock
+        self.counts: dict[tuple[str, str], int] = {}
+        self._logged: dict[str, tuple[float, int]] = {}   # reason -> (time, count then)
+
+    def add(self, key: str, reason: str, detail: str = "") -> None:
+        k = (key, reason)
+        self.counts[k] = self.counts.get(k, 0) + 1
+        now = self.clock()
+        total = sum(v for (_, r), v in self.counts.items() if r == reason)
+        last = self._logged.get(reason)
+        if last is None or now - last[0] >= LOG_PERIOD_S:
+            since = total - (last[1] if last else 0)
+            more = f" ({since} such messages since the last report)" if last else ""
+            self.log.warning("dropped a message on %s: %s%s%s", key, reason, f": {detail}" if detail else "", more)
+            self._logged[reason] = (now, total)
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def figures(self) -> dict:
+        """``{"key: reason": count}`` for the stats."""
+        return {f"{k}: {r}": n for (k, r), n in sorted(self.counts.items())}
+
+    def restore(self, figures: dict) -> None:
+        for text, n in (figures or {}).items():
+            key, _, reason = str(text).rpartition(": ")
+            if isinstance(n, int):
+                self.counts[(key, reason)] = self.counts.get((key, reason), 0) + n
