@@ -4,7 +4,9 @@ annealing layer, so a filter starts by itself and recovers when it has lost the 
 
 Detections (cheap, from the voxel list):
 
-* **head**: the top of the blob (mean of the voxels within 8 cm of the highest one);
+* **head**: the top of the blob near the body axis (the median of the trunk band, so a
+  hand raised above the head is not taken for it): the mean of the voxels within 8 cm
+  of the highest one;
 * **torso axis**: from the pelvis estimate to the head, and the principal horizontal
   axis of the shoulder band, whose normal is the heading up to a sign (two
   candidates; the track's velocity picks one while the person walks);
@@ -44,8 +46,15 @@ def detect(centres: np.ndarray, height: float, velocity=None) -> Detections | No
     if len(centres) < 30:
         return None
     c = np.asarray(centres)
-    top = float(c[:, 2].max())
-    near_top = c[c[:, 2] >= top - 0.08]
+    # the body axis: the median of the trunk band (raised arms do not move it much)
+    trunk = c[(c[:, 2] > 0.50 * height) & (c[:, 2] < 0.70 * height)]
+    axis = np.median(trunk[:, :2], axis=0) if len(trunk) >= 10 else np.median(c[:, :2], axis=0)
+    # the head: the top of the blob near that axis (a hand above the head is not it)
+    near_axis = c[np.hypot(c[:, 0] - axis[0], c[:, 1] - axis[1]) < 0.18]
+    if len(near_axis) < 10:
+        near_axis = c
+    top = float(near_axis[:, 2].max())
+    near_top = near_axis[near_axis[:, 2] >= top - 0.08]
     head = near_top.mean(axis=0)
     head[2] = top - 0.066 * height
     centroid = c.mean(axis=0)

@@ -1,0 +1,173 @@
+"""Pose core (thesis Ch. 3, 5-7): forward kinematics against hand-computed poses, joint
+limits, the annealing schedule, pose error on short simulated clips against ground
+truth, recovery after a corrupted state and DDM limb switching."""
+import math
+
+import numpy as np
+import pytest
+
+from app.evaluation.pose import epsilon_opt, joint_angles, point_metrics
+from app.messages import JOINTS
+from app.pose.annealing import annealing_exponent, propagate, survival_rate
+from app.pose.estimator import PoseSettings
+from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, N_DOF, SIGMA0, BodyModel, exp_map, neutral_state
+from app.pose.offline import clip_errors, run_clip, simulated_clip
+
+J = {n: i for i, n in enumerate(JOINTS)}
+
+
+def _zero(H=1.8, root=(1.0, 2.0, 1.0), yaw=0.0):
+    y = np.zeros(N_DOF)
+    y[:3] = root
+    y[DOF["yaw"]] = yaw
+    return y
+
+
+def test_forward_kinematics_matches_hand_computed_poses():
+    H = 1.8
+    m = BodyModel(H)
+    root = np.array([1.0, 2.0, 1.0])
+    # all angles zero: a straight body facing +x, arms hanging
+    X = m.joints(_zero(H))
+    neck = root + [0, 0, 0.295 * H]
+    np.testing.assert_allclose(X[J["pelvis"]], root)
+    np.testing.assert_allclose(X[J["neck"]], neck)
+    np.testing.assert_allclose(X[J["head"]], neck + [0.012 * H, 0, 0.090 * H])
+    l_sh = root + [-0.005 * H, 0.104 * H, 0.260 * H]
+    np.testing.assert_allclose(X[J["l_shoulder"]], l_sh)
+    np.testing.assert_allclose(X[J["l_elbow"]], l_sh - [0, 0, 0.186 * H])
+    np.testing.assert_allclose(X[J["l_wrist"]], l_sh - [0, 0, (0.186 + 0.146) * H])
+    r_hip = root + [0, -0.052 * H, -0.025 * H]
+    np.testing.assert_allclose(X[J["r_hip"]], r_hip)
+    np.testing.assert_allclose(X[J["r_ankle"]], r_hip - [0, 0, (0.240 + 0.246) * H])
+    # elbow flexed 90 deg: the forearm points forward; left arm abducted 90 deg: sideways
+    y = _zero(H)
+    y[DOF["r_elbow"]] = math.pi / 2
+    y[DOF["l_sh_abd"]] = math.pi / 2
+    y[DOF["l_knee"]] = math.pi / 2
+    X = m.joints(y)
+    r_el = root + [-0.005 * H, -0.104 * H, (0.260 - 0.186) * H]
+    np.testing.assert_allclose(X[J["r_wrist"]], r_el + [0.146 * H, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(X[J["l_elbow"]], l_sh + [0, 0.186 * H, 0], atol=1e-12)
+    l_knee = root + [0, 0.052 * H, -(0.025 + 0.240) * H]
+    np.testing.assert_allclose(X[J["l_ankle"]], l_knee + [-0.246 * H, 0, 0], atol=1e-12)  # knee bends backwards
+    # turned to face +y (yaw 90 deg): the person's left is -x
+    X = m.joints(_zero(H, yaw=math.pi / 2))
+    np.testing.assert_allclose(X[J["l_shoulder"]], root + [-0.104 * H, -0.005 * H, 0.260 * H], atol=1e-12)
+    # the exponential map (App. A) is the rotation about its axis
+    w = np.array([1.0, 2.0, 2.0]) / 3.0
+    R = exp_map(0.7, w)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(R @ w, w, atol=1e-12)
+    assert math.isclose(np.trace(R), 1 + 2 * math.cos(0.7))
+
+
+def test_propagation_never_leaves_the_joint_limits():
+    rng = np.random.default_rng(0)
+    # states at and near the limits, diffused with 20 x the propagation noise
+    base = np.tile(neutral_state(1.75), (2000, 1))
+    finite = np.isfinite(LIMITS_LO)
+    base[:1000, finite] = LIMITS_LO[finite]
+    base[1000:, finite] = LIMITS_HI[finite]
+    for _ in range(5):
+        base = propagate(base, SIGMA0 * 20, LIMITS_LO, LIMITS_HI, rng)
+        assert BodyModel.within_limits(base)
+    # and the draws are spread, not stuck on the bounds
+    knee = base[:, DOF["l_knee"]]
+    assert np.mean((knee > 0.01) & (knee < 2.39)) > 0.9
+
+
+def test_annealing_exponent_gives_the_desired_survival_rate():
+    rng = np.random.default_rng(1)
+    for scale in (0.5, 5.0, 80.0):
+        log_w = -scale * rng.random(600) ** 2
+        for alpha in (0.2, 0.5, 0.8):
+            beta = annealing_exponent(log_w, alpha)
+            assert beta > 0
+            assert abs(survival_rate(log_w, beta) - alpha) < 2e-3, (scale, alpha, beta)
+
+
+@pytest.fixture(scope="module")
+def gesture_clip():
+    """gesture1, first 1.6 s at 2 cm, voxels of the true bodies, true centroids as tracks."""
+    clip, cal = simulated_clip("gesture1", range(0, 40), 0.02)
+    return clip, cal
+
+
+def _settings(cal, **kw):
+    return PoseSettings(voxel_size=0.02, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max), **kw)
+
+
+def test_shbm_apf_pose_error_on_a_simulated_clip(gesture_clip):
+    clip, cal = gesture_clip
+    res = run_clip(clip, _settings(cal, method="shbm"))
+    E = clip_errors(clip, res["estimates"])
+    assert not np.isnan(E).any()
+    m = point_metrics(E[5:], epsilon=0.1)   # after lock-on
+    print("SHBM-APF gesture1 2 cm density 2:", m["mmta"], m["mmtp_mm"], m["mpjpe_mm"])
+    assert m["mmta"] >= 0.85, m
+    assert m["mmtp_mm"] <= 45, m
+    # the filter locks on by itself: no hand initialisation, poses from the first frames
+    assert np.nanmean(E[2]) < 0.1
+
+
+def test_recovery_after_a_corrupted_state(gesture_clip):
+    clip, cal = gesture_clip
+    bad = {}
+
+    def corrupt(frame, est):
+        if frame == 15:
+            person = est.people[1]
+            y = person.state.copy()
+            y[DOF["yaw"]] += math.pi            # turned round
+            y[0] += 0.25                         # 25 cm off
+            y[DOF["l_sh_flex"]] = y[DOF["r_sh_flex"]] = 2.5   # arms up
+            person.corrupt(y)
+            bad["joints"] = person.model.joints(y)
+
+    res = run_clip(clip, _settings(cal, method="shbm"), corrupt=corrupt)
+    E = clip_errors(clip, res["estimates"])
+    truth = clip[15].truth[1]
+    assert np.linalg.norm(bad["joints"] - truth, axis=1).mean() > 0.25   # the corruption was real
+    per_frame = np.nanmean(E, axis=1)
+    recovered = [k for k in range(15, len(clip)) if per_frame[k] < 0.08]
+    assert recovered, per_frame[15:]
+    frames = recovered[0] - 15
+    print(f"recovered {frames} frames after the corruption; MPJPE then {1e3 * per_frame[recovered[0]]:.0f} mm")
+    assert frames <= 12
+    assert np.mean(per_frame[-8:]) < 0.08
+
+
+def test_ddm_switches_hidden_legs_off_and_on():
+    """The legs' voxels below 55 cm are removed for 1 s (a deliberate occlusion):
+    DDM switches the shins off while hidden and finds at least one back afterwards."""
+    def hide(i, c):
+        return ~((c[:, 2] < 0.55) & (15 <= i < 35))
+
+    clip, cal = simulated_clip("gesture1", range(0, 62), 0.02, hide=hide)
+    res = run_clip(clip, _settings(cal, method="shbm+ddm"))
+    flags = np.array([a[1] for a in res["active"]])
+    ankles = flags[:, [J["l_ankle"], J["r_ankle"]]]
+    assert ankles[:15].all()
+    assert not ankles[18:35].any(), ankles[15:35]        # off within 3 frames of the occlusion
+    assert ankles[35:].any(axis=1).any()                  # at least one leg found again
+    events = res["estimator"].people[1].switch.events
+    print("DDM events", events)
+
+
+def test_point_metrics_and_epsilon_opt():
+    rng = np.random.default_rng(0)
+    E = np.abs(rng.normal(0.04, 0.01, (200, 15)))
+    E[:, 5] = rng.uniform(0.2, 0.5, 200)   # one lost joint
+    m = point_metrics(E, epsilon=0.1)
+    assert abs(m["mmta"] - 14 / 15) < 1e-4
+    assert abs(m["mmtp_mm"] - 40) < 2
+    assert m["mu_mm"] > m["mmtp_mm"]
+    eo = epsilon_opt(E)
+    assert 50 <= eo["lilliefors_mm"] <= 200 and 50 <= eo["qq_r2_mm"] <= 200
+    # angle re-parameterisation of a hand-made pose: elbow at 90 deg
+    X = BodyModel(1.8).joints(_zero())
+    y = _zero()
+    y[DOF["r_elbow"]] = math.pi / 2
+    a = joint_angles(BodyModel(1.8).joints(y))
+    assert math.isclose(a[1], math.pi / 2, abs_tol=1e-9) and math.isclose(joint_angles(X)[1], math.pi, abs_tol=1e-9)
