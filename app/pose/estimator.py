@@ -170,8 +170,9 @@ class PoseEstimator:
         self.settings.validate()
         self.rng = np.random.default_rng(self.settings.seed)
 
-    def update(self, centres: np.ndarray, surface, ids, positions) -> dict:
-        """``{track id: (joints (15, 3), active (15,))}`` for every track with a body."""
+    def update(self, centres: np.ndarray, surface, ids, positions, only=None) -> dict:
+        """``{track id: (joints (15, 3), active (15,))}`` for every track with a body
+        (``only``: a predicate on track ids; the others still own their voxels)."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
@@ -179,6 +180,8 @@ class PoseEstimator:
         surface = None if surface is None or len(surface) != len(centres) else np.asarray(surface, bool)
         out = {}
         for k, tid in enumerate(ids):
+            if only is not None and not only(tid):
+                continue
             person = self.people.get(tid)
             if person is None:
                 person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(

@@ -1,0 +1,58 @@
+"""A test-only source that publishes a simulated clip's voxels and true tracks, as the
+reconstruction and tracking stages would (plugin kind ``tests.pose_source:ClipSource``),
+so the pose worker is tested over the bus before and apart from the tracking stage.
+
+The clip file (``.npz``): ``voxel_size``, ``origin`` (3,), ``dims`` (3,), ``frames``
+(F,), ``offsets`` (F + 1,), ``indices`` (N, 3), ``track_offsets`` (F + 1,), ``ids``
+(T,), ``positions`` (T, 3).
+"""
+import time
+
+import numpy as np
+
+from app.messages import Tracks, Voxels
+from workers.base import Worker
+
+
+class ClipSource(Worker):
+    KIND = "clip_source"
+    ORDER = 1
+    PRODUCES = ("voxels", "tracks")
+    DEFAULTS = {"file": "", "rate": 10.0}
+
+    def setup(self):
+        self.clip = dict(np.load(self.params["file"]))
+        self.next = 0
+        others = {w.name for w in self.layout.workers if w.name != self.name}
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
+                     for r in self.session.liveliness().get(self.keys.alive()) if r.ok is not None}
+            if others <= alive:
+                break
+            time.sleep(0.1)
+        time.sleep(0.3)
+
+    def produce(self):
+        c = self.clip
+        if self.next >= len(c["frames"]):
+            return False
+        k = self.next
+        frame = int(c["frames"][k])
+        t = frame / 25.0
+        idx = c["indices"][c["offsets"][k]:c["offsets"][k + 1]].astype(np.int32)
+        self.publish(self.keys.voxels(), Voxels(
+            frame=frame, stamp=time.time(), t=t, voxel_size=float(c["voxel_size"]),
+            origin=[float(v) for v in c["origin"]], dims=[int(v) for v in c["dims"]], cameras=[],
+            indices=idx, colours=np.zeros((0, 3), np.uint8), surface=np.zeros(0, bool)))
+        a, b = c["track_offsets"][k], c["track_offsets"][k + 1]
+        time.sleep(0.01)   # tracks follow the voxels, as from the tracking stage
+        self.publish(self.keys.tracks(), Tracks(frame=frame, stamp=time.time(), t=t,
+                                                ids=c["ids"][a:b].astype(np.int64),
+                                                positions=c["positions"][a:b].astype(np.float64)))
+        self.next += 1
+        self.sleep(1.0 / self.params["rate"])
+        return True
+
+    def stream_info(self):
+        return len(self.clip["frames"]), int(self.clip["frames"][0]), 25.0

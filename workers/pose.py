@@ -1,0 +1,129 @@
+"""Pose worker: the articulated pose of every tracked person (thesis Ch. 6-7) from a
+frame's voxels and tracks; publishes :class:`~app.messages.Poses` (the recorder writes
+``poses.jsonl``, the viewer draws skeletons).
+
+Voxels and tracks of one frame arrive on their own keys (tracks later: they are made
+from the voxels); the worker keeps the last few of each by frame and poses a frame as
+soon as both are in. One filter per track (:class:`app.pose.estimator.PoseEstimator`);
+each person's likelihood ignores the voxels owned by the other tracks. More people than
+one worker carries in real time is a layout matter: several pose workers, each with
+``tracks: [ids...]`` or ``share: [k, n]`` (track ids with ``id % n == k``).
+
+``method``: ``shbm`` (SHBM-APF, §7.3, default), ``apf`` (§6.5), ``ddm`` (APF with DDM
+limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density factor
+(Eq. 6.26); ``likelihood`` ``partitioned`` (Eqs. 6.23-6.25) or ``global`` (6.17-6.22).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from app.errors import InputError
+from app.messages import MessageError, Poses, Tracks, Voxels
+from workers.base import Worker
+
+KEEP_FRAMES = 8
+
+
+class Pose(Worker):
+    KIND = "pose"
+    ORDER = 5
+    CONSUMES = ("voxels", "tracks")
+    PRODUCES = ("poses",)
+    ACCEPTS = (Voxels, Tracks)
+    INBOX_DEPTH = 4
+    DEFAULTS = {
+        "method": "shbm",           # shbm, apf, ddm, shbm+ddm
+        "density": 2.0,             # delta of Eq. 6.26 (1 = the data's voxel size)
+        "likelihood": "partitioned",  # or global
+        "particles": 600,           # APF: particles per layer
+        "layers": 6,                # APF: annealing layers
+        "gamma": 50,                # SHBM-APF: particles per new DoF (Eq. 7.28)
+        "importance_fraction": 0.2,  # IAPF: first-layer particles drawn from the detections
+        "reach": 0.9,               # m: voxels farther from every track belong to nobody
+        "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
+        "seed": 0,
+    }
+    RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
+              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0)}
+
+    def setup(self) -> None:
+        from app.pose.estimator import PoseSettings
+        p = self.params
+        try:
+            self.settings = PoseSettings(method=p["method"], density=float(p["density"]), likelihood=p["likelihood"],
+                                         particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
+                                         importance_fraction=float(p["importance_fraction"]),
+                                         reach=float(p["reach"]), seed=int(p["seed"]))
+            self.settings.validate()
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"pose: {exc}") from None
+        share = p.get("share")
+        if share is not None and not (isinstance(share, (list, tuple)) and len(share) == 2 and 0 <= share[0] < share[1]):
+            raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
+        self.share = share
+        self.estimator = None
+        self.grid = None
+        self.voxels: dict[int, Voxels] = {}
+        self.tracks: dict[int, Tracks] = {}
+        self.done = -1
+        self.people_counts: list[int] = []
+        from app.pose.model import BodyModel
+        BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
+
+    def _estimator(self, msg: Voxels):
+        from app.pose.estimator import PoseEstimator
+        grid = (round(float(msg.voxel_size), 6), tuple(float(v) for v in msg.origin), tuple(int(d) for d in msg.dims))
+        if grid != self.grid:
+            s = self.settings
+            s.voxel_size = grid[0]
+            s.room_lo = tuple(grid[1])
+            s.room_hi = tuple(np.asarray(grid[1]) + np.asarray(grid[2]) * grid[0])
+            self.estimator = PoseEstimator(s)
+            self.grid = grid
+        return self.estimator
+
+    def handle(self, key: str, msg) -> None:
+        try:
+            msg.validate()
+        except MessageError as exc:
+            self.ledger.bad_message()
+            self.log.warning("frame %d: %s; skipped", msg.frame, exc)
+            return
+        if msg.frame <= self.done:
+            return
+        store = self.voxels if isinstance(msg, Voxels) else self.tracks
+        store[msg.frame] = msg
+        for d in (self.voxels, self.tracks):
+            for f in sorted(d)[:-KEEP_FRAMES]:
+                del d[f]
+        ready = sorted(set(self.voxels) & set(self.tracks))
+        if ready:
+            frame = ready[-1]   # the newest complete frame; older ones are behind
+            self._pose(self.voxels.pop(frame), self.tracks.pop(frame))
+            for d in (self.voxels, self.tracks):
+                for f in [f for f in d if f <= frame]:
+                    del d[f]
+
+    def _pose(self, vox: Voxels, tracks: Tracks) -> None:
+        self.done = vox.frame
+        ids = np.asarray(tracks.ids, dtype=np.int64)
+        positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
+        est = self._estimator(vox)
+        surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
+        # every track takes part in the voxel ownership; only this worker's share is posed
+        only = None
+        if self.share is not None:
+            k, n = self.share
+            only = lambda t: t % n == k  # noqa: E731
+        result = est.update(vox.centres(), surface, ids, positions, only=only)
+        order = sorted(result)
+        self.people_counts.append(len(order))
+        joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)
+        active = np.array([result[t][1] for t in order], dtype=bool).reshape(-1, 15)
+        same = {"epoch": vox.epoch} if hasattr(vox, "epoch") else {}
+        self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t,
+                                              tracks=np.array(order, dtype=np.int64), joints=joints, active=active))
+
+    def extra_figures(self) -> dict:
+        c = getattr(self, "people_counts", [])
+        return {"people": int(c[-1]) if c else 0, "method": self.params.get("method")}
