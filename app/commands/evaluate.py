@@ -16,6 +16,8 @@ def add_arguments(p) -> None:
     p.add_argument("--results", required=True, metavar="DIR", help="results folder of smartroom run")
     p.add_argument("--near", type=float, default=0.10,
                    help="a voxel within this distance (m) of a body is not spurious (default 0.10)")
+    p.add_argument("--epsilon", type=float, default=100.0,
+                   help="pose: a joint within this distance (mm) of the truth is matched (MMTP/MMTA, default 100)")
 
 
 def evaluate_reconstruction(recording: Path, voxels_path: Path, near: float = 0.10) -> dict:
@@ -91,6 +93,13 @@ def main(args) -> int:
                   f"voxels; person in pieces (< 0.9) in {100 * s['frames_in_pieces']:.1f}% of frames")
     if (results / "tracks.jsonl").is_file():
         report["tracking"] = evaluate_tracking(recording, results / "tracks.jsonl")
+    if (results / "poses.jsonl").is_file() and (recording / "groundtruth.jsonl").is_file():
+        from app.evaluation.pose import evaluate_pose_files
+        pose = report["pose"] = evaluate_pose_files(recording, results, epsilon=args.epsilon / 1000.0)
+        print(f"pose over {pose.get('frames_scored', 0)} frames: MMTA {pose.get('mmta')} and MMTP "
+              f"{pose.get('mmtp_mm')} mm at {args.epsilon:g} mm, mu {pose.get('mu_mm')} mm, sigma "
+              f"{pose.get('sigma_mm')} mm, MPJPE {pose.get('mpjpe_mm')} mm, PCP {pose.get('pcp')}, angles "
+              f"{pose.get('mu_theta_deg')} +- {pose.get('sigma_theta_deg')} deg, epsilon_opt {pose.get('epsilon_opt')}")
     if not report:
         raise InputError(f"{results}: holds nothing this version can score (voxels.bin: run with "
                          "--set recorder.voxels=true)")
