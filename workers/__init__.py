@@ -14,8 +14,6 @@ KINDS = {
     "grabber": "workers.grabber:Grabber",
     "segmentation": "workers.segmentation:Segmentation",
     "reconstruction": "workers.reconstruction:Reconstruction",
-    "cca": "workers.cca:ComponentAnalysis",
-    "tracking": "workers.tracking:Tracking",
     "pose": "workers.pose:Pose",
     "recorder": "workers.recorder:Recorder",
     "viewer": "workers.viewer:Viewer",
