@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 from numba import njit
 
-__all__ = ["SegmentationParams", "CameraSegmenter", "estimate_background", "working_size", "matched_scale", "shrink",
-           "YuvBackground"]
+__all__ = ["SegmentationParams", "CameraSegmenter", "estimate_background", "estimate_background_robust", "working_size",
+           "matched_scale", "shrink", "YuvBackground"]
 
 
 @dataclass
@@ -74,6 +74,69 @@ def estimate_background(images) -> np.ndarray:
     over a recording (people move, so each pixel is background most of the time)."""
     stack = np.stack(list(images))
     return np.median(stack, axis=0).astype(np.uint8)
+
+
+@njit(cache=True, nogil=True)
+def _masked_median(stack, masked, previous, min_count, out, uncertain):
+    """Per pixel and channel, the median of the frames where the pixel is not masked;
+    where fewer than ``min_count`` frames are left, the previous estimate (uncertain)."""
+    n, h, w, ch = stack.shape
+    vals = np.empty(n, dtype=np.uint8)
+    for y in range(h):
+        for x in range(w):
+            m = 0
+            for t in range(n):
+                if not masked[t, y, x]:
+                    m += 1
+            if m < min_count:
+                uncertain[y, x] = True
+                for c in range(ch):
+                    out[y, x, c] = previous[y, x, c]
+                continue
+            uncertain[y, x] = False
+            for c in range(ch):
+                k = 0
+                for t in range(n):
+                    if not masked[t, y, x]:
+                        vals[k] = stack[t, y, x, c]
+                        k += 1
+                v = np.sort(vals[:k])
+                out[y, x, c] = v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
+
+
+def estimate_background_robust(images, iterations: int = 2, threshold: int = 24, grow_px: int = 9,
+                               min_share: float = 0.15) -> tuple[np.ndarray, float]:
+    """Empty-room image of a recording with people in it: ``(background, uncertain)``.
+
+    Starts from the per-pixel temporal median of the frames (BGR, spread over the
+    recording) and then, ``iterations`` times, marks in every frame the pixels that
+    differ from the current estimate by more than ``threshold`` grey levels in some
+    channel (people, their shadows), grown by ``grow_px`` so their blurred outlines
+    go too, and takes the median of what is left per pixel. A person who stood still
+    for a while drags the plain median towards their colours (a ghost: holes in them,
+    false foreground where they stood); once they have moved, the frames that show
+    them differ from the room and are left out. Where fewer than ``min_share`` of the
+    frames are left (someone there almost all the time) the pixel keeps the earlier
+    estimate and counts as uncertain; ``uncertain`` is that share of the image.
+    """
+    stack = np.ascontiguousarray(np.stack(list(images)))
+    n = len(stack)
+    background = np.median(stack, axis=0).astype(np.uint8)
+    uncertain = np.zeros(stack.shape[1:3], dtype=np.bool_)
+    if n < 3:
+        return background, 1.0
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow_px, grow_px)) if grow_px > 1 else None
+    min_count = max(2, int(np.ceil(min_share * n)))
+    for _ in range(iterations):
+        masked = np.empty(stack.shape[:3], dtype=np.bool_)
+        for t in range(n):
+            diff = cv2.absdiff(stack[t], background).max(axis=2) > threshold
+            d8 = diff.view(np.uint8)
+            masked[t] = (cv2.dilate(d8, kernel) if kernel is not None else d8).view(bool)
+        out = np.empty_like(background)
+        _masked_median(stack, masked, background, min_count, out, uncertain)
+        background = out
+    return background, float(uncertain.mean())
 
 
 class CameraSegmenter:

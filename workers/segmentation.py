@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from app.messages import Frame, Mask
 from app.recording import Recording
-from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, matched_scale, shrink
+from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background_robust, matched_scale, shrink
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
@@ -77,9 +77,10 @@ class Segmentation(Worker):
         background = self.recording.background(cam)
         if background is None:
             n = self.params["median_frames"]
-            background = estimate_background(self.recording.sample(cam, n))
-            self.log.warning("camera %s: no background image; estimated as the median of %d frames of the recording",
-                             cam, n)
+            background, uncertain = estimate_background_robust(self.recording.sample(cam, n))
+            self.log.warning("camera %s: no background image; estimated from %d frames of the recording with the "
+                             "people left out; %.1f%% of the image stayed uncertain (someone there in almost every "
+                             "frame)", cam, n, 100 * uncertain)
         return background
 
     def _segmenter(self, cam: str) -> CameraSegmenter:

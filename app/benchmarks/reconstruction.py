@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["segment_frames", "run", "format_table", "BUDGET_MS"]
+from app.segmentation import shrink
+
+__all__ = ["segment_frames", "run", "format_table", "BUDGET_MS", "hull_table", "format_hull_table"]
 
 #: issue 4's targets: segmentation + reconstruction + colouring + surface per frame
 BUDGET_MS = {0.02: 40.0, 0.04: 15.0}
@@ -28,7 +30,7 @@ def segment_frames(recording, frames: int, scale: int = 2, colour_scale: int | N
     ``(calibration, [(masks, images)], segmentation ms per frame (all cameras), frame
     indices)``; colour images at ``colour_scale`` (default: the mask scale)."""
     from app.recording import Recording
-    from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, shrink
+    from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background_robust
 
     rec = Recording(recording)
     colour_scale = scale if colour_scale is None else colour_scale
@@ -36,7 +38,7 @@ def segment_frames(recording, frames: int, scale: int = 2, colour_scale: int | N
     segs = {}
     for cam in rec.cameras:
         bg = rec.background(cam)
-        segs[cam] = CameraSegmenter(params, bg if bg is not None else estimate_background(rec.sample(cam, 25)))
+        segs[cam] = CameraSegmenter(params, bg if bg is not None else estimate_background_robust(rec.sample(cam, 25))[0])
     out, seg_ms, indices = [], [], []
     for i, images in rec.frames(stop=frames):
         t0 = time.perf_counter()
@@ -144,7 +146,26 @@ HULL_VARIANTS = (
     ("k=0", {"tolerance": 0}),
     ("k=1", {"tolerance": 1}),
     ("occluders", {"tolerance": 0, "occlusion": "learnt"}),
+    ("fused", {"tolerance": 0, "method": "fused"}),
 )
+
+
+def fused_distances(recording, images: list[dict], scale: int, noise_frames: int = 10) -> list[dict]:
+    """Per-pixel squared Mahalanobis distance maps (Caillette's fused method) of the
+    frames' images at the mask size: the background model from the recording's
+    empty-room image (or the median of its frames), its covariance from the first
+    ``noise_frames`` frames."""
+    from app.recording import Recording
+    from app.segmentation import YuvBackground, estimate_background
+
+    rec = Recording(recording)
+    models = {}
+    for cam in images[0]:
+        bg = rec.background(cam)
+        bg = bg if bg is not None else estimate_background(rec.sample(cam, 25))
+        models[cam] = YuvBackground(shrink(bg, scale))
+        models[cam].fit_noise([f[cam] for f in images[:noise_frames]])
+    return [{cam: models[cam].distance(im) for cam, im in f.items()} for f in images]
 HULL_TARGET = {"volume_ratio": 2.5, "recall": 0.97, "largest_share": 0.9}
 
 
@@ -209,7 +230,10 @@ def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: i
         sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
         truths = {}
         for name, options in variants:
-            for source, masks_list in sources:
+            runs = sources
+            if options.get("method") == "fused":     # Caillette: its own per-pixel statistics, no masks
+                runs = [("yuv", fused_distances(recording, [im for _, im in segmented], scale))]
+            for source, masks_list in runs:
                 r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", min_top=min_top, **options)
                 scores, ms = [], []
                 for n, (masks, i) in enumerate(zip(masks_list, indices)):

@@ -42,6 +42,7 @@ class Scene:
     layout: str
     seconds: float                  # natural length of the script
     people: tuple = field(default_factory=tuple)
+    empty_room_shot: bool = True    # write background/ images (the empty room); False: the room is never empty
 
 
 _LOOP = (4.1, 0.6), (4.57, 2.2), (4.2, 3.6), (0.85, 3.45), (0.8, 0.75)
@@ -89,6 +90,19 @@ SCENES: dict[str, Scene] = {
             PersonSpec((Wander(None),), start=(3.6, 1.2, PI / 2)),
             PersonSpec((Enter((0.9, 2.0), after=3.0), Wander(None))),
         ),
+    ),
+    "still2": Scene(
+        "still2", "2 people, never out of the room: one stands still for 4 s, then walks off; the other walks "
+                  "around the table (no empty-room images: the background must be estimated with people in it)",
+        "meeting", 14.0,
+        (
+            PersonSpec((Stand(4.0), Walk((4.3, 3.2)), Turn(PI), Stand(1.0), Walk((3.6, 0.8)), Stand(1.0)),
+                       start=(1.3, 3.2, -PI / 4)),
+            PersonSpec((Walk(_LOOP[1], via=(_LOOP[0],)), Walk(_LOOP[4], via=(_LOOP[2], _LOOP[3])), Stand(0.5),
+                        Walk(_LOOP[1], via=(_LOOP[0],))),
+                       start=(1.2, 0.7, 0.0), repeat=True),
+        ),
+        empty_room_shot=False,
     ),
     "occluded1": Scene(
         "occluded1", "1 person walking along the aisle between two tables (legs hidden from most views)",

@@ -231,7 +231,7 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     """Write a recording folder (CONTRACT §1) of a scene and return its path.
 
     ``videos/<cam>.mp4`` (the codec's compression included), ``background/<cam>.png``
-    (the empty room, no noise), ``calibration.yaml``, ``groundtruth.jsonl``,
+    (the empty room, no noise; not for scenes whose room is never empty), ``calibration.yaml``, ``groundtruth.jsonl``,
     ``bodies.jsonl`` (the body primitives per frame, for reconstruction scoring) and,
     with ``occupancy`` (a voxel size in metres), ``occupancy.npz`` (the true occupied
     voxels per frame, see :mod:`app.simulation.occupancy`). ``progress(done, total,
@@ -250,7 +250,7 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     writer = RecordingWriter(out, sim.calibration, codec=codec, overwrite=overwrite)
     started = time.perf_counter()
     try:
-        for cam in sim.cameras:
+        for cam in sim.cameras if sim.scene.empty_room_shot else ():   # a room never empty has no such shot
             writer.write_background(cam, sim.background(cam))
         occ = OccupancyWriter(writer.file("occupancy.npz"), sim.calibration, occupancy) if occupancy else None
         with open(writer.file("bodies.jsonl"), "w", encoding="utf-8") as bodies:
