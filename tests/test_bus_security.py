@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from app.bus import BusConfig, free_port, open_session
+from app.bus import BusConfig, Keys, free_port, open_session
 from app.bus_section import AuthConfig, TlsConfig, endpoint_problem
 from app.config import LayoutError, load_layout, parse_layout
 from app.errors import InputError
+from tests.conftest import start_smartroom
 
 ROOT = Path(__file__).resolve().parent.parent
 MAKE_CERTS = ROOT / "deploy" / "tls" / "make_certs.sh"
@@ -105,7 +106,8 @@ def test_user_password_admits_the_right_password_and_refuses_others(tmp_path):
 # -- the layout's bus section ---------------------------------------------------------------
 
 def _layout(bus: dict) -> dict:
-    return {"room": "r", "bus": bus, "workers": [{"name": "g", "kind": "grabber"}, {"name": "s", "kind": "segmentation"}]}
+    return {"room": "r", "bus": bus,
+            "workers": [{"name": "g", "kind": "grabber"}, {"name": "s", "kind": "segmentation"}]}
 
 
 @pytest.fixture()
@@ -238,3 +240,55 @@ def test_open_session_turns_bad_endpoints_into_one_line_input_errors():
         msg = str(info.value)
         assert "\n" not in msg and problem in msg and (bus.connect or bus.listen)[0] in msg, msg
         assert "/root/.cargo" not in msg
+
+
+# -- a whole run over TLS ---------------------------------------------------------------------
+
+@pytest.mark.integration
+def test_a_run_over_mutual_tls_with_a_remote_worker_admits_it_and_not_an_intruder(certs, tiny_recording, tmp_path):
+    """The launcher's hub and its workers over mutual TLS and user/password, segmentation
+    started by hand as on another host; a session with another CA's certificate sees nothing."""
+    shutil.copytree(certs / "room", tmp_path / "tls")
+    layout = yaml.safe_load((ROOT / "deploy/layouts/local.yaml").read_text())
+    layout["workers"] = [w for w in layout["workers"] if w["kind"] != "viewer"]
+    for w in layout["workers"]:
+        if w["name"] == "segmentation":
+            w["host"] = "camera-pc"        # started by hand below, as on another host
+    port = free_port()
+    (tmp_path / "room.password").write_text("s3cret\n")
+    (tmp_path / "room.users").write_text("smartroom:s3cret\n")
+    layout["bus"] = {"listen": [f"tls/127.0.0.1:{port}"],
+                     "tls": {"ca": "tls/ca.pem", "cert": "tls/hub.pem", "key": "tls/hub.key"},
+                     "auth": {"user": "smartroom", "password_file": "room.password", "dictionary_file": "room.users"}}
+    path = tmp_path / "secure.yaml"
+    path.write_text(yaml.safe_dump(layout))
+    intruder = open_session(BusConfig(connect=[f"tls/127.0.0.1:{port}"], listen=["tls/127.0.0.1:0"],
+                                      tls=_tls(certs / "other", "intruder", ca=certs / "room" / "ca.pem")))
+    seen = []
+    sub = intruder.declare_subscriber(Keys(layout["room"]).root + "/**", lambda s: seen.append(str(s.key_expr)))
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", tiny_recording, "--frames", 50, "--headless", "--layout", path,
+                           "--out", out)
+    try:
+        for _ in range(400):
+            if (out / "layout.yaml").is_file():
+                break
+            time.sleep(0.05)
+        remote = start_smartroom("worker", "segmentation", "--layout", out / "layout.yaml")
+        try:
+            _, err = proc.communicate(timeout=120)
+            remote.communicate(timeout=30)
+        finally:
+            for p in (proc, remote):
+                if p.poll() is None:
+                    p.kill()
+    finally:
+        sub.undeclare()
+        intruder.close()
+    assert proc.returncode == 0, err
+    assert remote.returncode == 0
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["stages"]["segmentation"]["frames_out"] >= 48      # the room's remote worker took part
+    assert stats["stages"]["reconstruction"]["frames_out"] >= 48
+    assert load_layout(out / "layout.yaml").bus.listen == [f"tls/127.0.0.1:{port}"]
+    assert seen == []                                                  # the intruder saw nothing
