@@ -47,68 +47,82 @@ def part_variances() -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _cell(v, lo, inv, n):
+    """Cell index of coordinate ``v`` along an axis (-1 outside), without np.floor."""
+    f = (v - lo) * inv
+    if f < 0.0:
+        return -1
+    i = int(f)
+    return i if i < n else -1
+
+
+@njit(cache=True, nogil=True)
 def score_particles(states, height, pts, seg, part, surf, active, n_parts,
                     occ, prox, origin, vsize, room_lo, room_hi,
                     do_stamp, do_owner, do_multi, do_origin, do_size, token0, out):
     """Scores ``out (P, Q, 5)`` = (outside, double, occupied, surface-miss, surface count)
-    *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``."""
+    *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``.
+
+    Pass 1 moves every LUT point to the particle's pose, scores outside / occupancy /
+    surface and stamps the double-occupancy grid (cell -> the first part there, and
+    whether another part came too); pass 2 counts each part's points in shared cells."""
     S = SEG_PARENT_G.shape[0]
     R = np.empty((S, 3, 3))
     O = np.empty((S, 3))
     M = pts.shape[0]
-    W = np.empty((M, 3))
+    cells = np.empty(M, dtype=np.int64)
     X, Y, Z = occ.shape
     DX, DY, DZ = do_stamp.shape
+    flat_stamp = do_stamp.reshape(-1)
+    flat_owner = do_owner.reshape(-1)
+    flat_multi = do_multi.reshape(-1)
+    inv = 1.0 / vsize
+    dinv = 1.0 / do_size
     for k in range(states.shape[0]):
         token = token0 + k
         fk_segments(states[k], height, SEG_PARENT_G, SEG_OFFSET_G, DOF_SEGMENT_G, DOF_AXIS_G, R, O)
         for q in range(n_parts):
             for c in range(5):
                 out[k, q, c] = 0.0
-        # pass 1: world positions, outside, occupancy, surface; stamp the DO grid
         for m in range(M):
             q = part[m]
             if not active[q]:
+                cells[m] = -1
                 continue
             s = seg[m]
             px, py, pz = pts[m, 0], pts[m, 1], pts[m, 2]
             x = O[s, 0] + R[s, 0, 0] * px + R[s, 0, 1] * py + R[s, 0, 2] * pz
             y = O[s, 1] + R[s, 1, 0] * px + R[s, 1, 1] * py + R[s, 1, 2] * pz
             z = O[s, 2] + R[s, 2, 0] * px + R[s, 2, 1] * py + R[s, 2, 2] * pz
-            W[m, 0], W[m, 1], W[m, 2] = x, y, z
             if x < room_lo[0] or y < room_lo[1] or z < room_lo[2] or x > room_hi[0] or y > room_hi[1] or z > room_hi[2]:
                 out[k, q, 0] += 1.0
-            i = int(np.floor((x - origin[0]) / vsize))
-            j = int(np.floor((y - origin[1]) / vsize))
-            l = int(np.floor((z - origin[2]) / vsize))
-            inside = 0 <= i < X and 0 <= j < Y and 0 <= l < Z
+            i = _cell(x, origin[0], inv, X)
+            j = _cell(y, origin[1], inv, Y)
+            l = _cell(z, origin[2], inv, Z)
+            inside = i >= 0 and j >= 0 and l >= 0
             if inside and occ[i, j, l] != 0:
                 out[k, q, 2] += 1.0
             if surf[m]:
                 out[k, q, 4] += 1.0
-                p = prox[i, j, l] if inside else 0.0
-                out[k, q, 3] += 1.0 - p
-            a = int(np.floor((x - do_origin[0]) / do_size))
-            b = int(np.floor((y - do_origin[1]) / do_size))
-            c = int(np.floor((z - do_origin[2]) / do_size))
-            if 0 <= a < DX and 0 <= b < DY and 0 <= c < DZ:
-                if do_stamp[a, b, c] != token:
-                    do_stamp[a, b, c] = token
-                    do_owner[a, b, c] = q
-                    do_multi[a, b, c] = 0
-                elif do_owner[a, b, c] != q:
-                    do_multi[a, b, c] = 1
-        # pass 2: double occupancy
+                out[k, q, 3] += 1.0 - (prox[i, j, l] if inside else 0.0)
+            a = _cell(x, do_origin[0], dinv, DX)
+            b = _cell(y, do_origin[1], dinv, DY)
+            c = _cell(z, do_origin[2], dinv, DZ)
+            if a >= 0 and b >= 0 and c >= 0:
+                f = (a * DY + b) * DZ + c
+                cells[m] = f
+                if flat_stamp[f] != token:
+                    flat_stamp[f] = token
+                    flat_owner[f] = q
+                    flat_multi[f] = 0
+                elif flat_owner[f] != q:
+                    flat_multi[f] = 1
+            else:
+                cells[m] = -1
         for m in range(M):
-            q = part[m]
-            if not active[q]:
-                continue
-            a = int(np.floor((W[m, 0] - do_origin[0]) / do_size))
-            b = int(np.floor((W[m, 1] - do_origin[1]) / do_size))
-            c = int(np.floor((W[m, 2] - do_origin[2]) / do_size))
-            if 0 <= a < DX and 0 <= b < DY and 0 <= c < DZ:
-                if do_stamp[a, b, c] == token and do_multi[a, b, c] != 0:
-                    out[k, q, 1] += 1.0
+            f = cells[m]
+            if f >= 0 and flat_multi[f] != 0:
+                out[k, part[m], 1] += 1.0
 
 
 # the kinematic tables as numba globals (compile-time constants)

@@ -1,0 +1,67 @@
+"""``smartroom bench pose``: ms per frame of the pose filters on one core next to their
+accuracy (MMTA / MMTP at 100 mm, MPJPE), so the accuracy price of the model density
+(Eq. 6.26, the thesis's Fig. 6.18) and the APF < SHBM-APF ordering are visible in one
+table.
+
+Each row runs one method at one density over the same simulated clip(s): one person,
+voxels of the true body at ``voxel_size`` (default 2 cm) or the visual hull of the
+true silhouettes (``source="hull"``), true centroids as tracks. The first
+``warmup`` frames (lock-on and kernel compilation) are timed but not scored.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from app.evaluation.pose import point_metrics
+from app.pose.estimator import PoseSettings
+from app.pose.offline import clip_errors, run_clip, simulated_clip
+
+__all__ = ["bench_pose", "format_table", "CONFIGS"]
+
+#: (label, method, extra settings)
+CONFIGS = (
+    ("APF 600x6", "apf", {"particles": 600, "layers": 6}),
+    ("SHBM-APF", "shbm", {}),
+    ("DDM-APF", "ddm", {}),
+    ("SHBM+DDM", "shbm+ddm", {}),
+)
+
+
+def bench_pose(scenes=("gesture1", "walk1"), frames: int = 75, start: int = 0, voxel_size: float = 0.02,
+               densities=(1, 2, 3), methods=("apf", "shbm", "ddm"), source: str = "true", warmup: int = 5,
+               epsilon: float = 0.1, verbose: bool = True) -> list[dict]:
+    clips = {}
+    for scene in scenes:
+        clips[scene], cal = simulated_clip(scene, range(start, start + frames), voxel_size, source=source)
+    rows = []
+    for label, method, extra in CONFIGS:
+        if method not in methods:
+            continue
+        for density in densities:
+            for scene, clip in clips.items():
+                s = PoseSettings(method=method, voxel_size=voxel_size, density=float(density),
+                                 room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max), **extra)
+                res = run_clip(clip, s)
+                E = clip_errors(clip, res["estimates"])[warmup:]
+                m = point_metrics(E, epsilon)
+                ms = np.array(res["ms"][warmup:])
+                row = {"method": label, "scene": scene, "density": density, "frames": len(clip),
+                       "ms_p50": round(float(np.median(ms)), 1), "ms_p95": round(float(np.percentile(ms, 95)), 1),
+                       "mmta": m["mmta"], "mmtp_mm": m["mmtp_mm"], "mpjpe_mm": m["mpjpe_mm"],
+                       "mu_mm": m["mu_mm"], "sigma_mm": m["sigma_mm"]}
+                rows.append(row)
+                if verbose:
+                    print(_line(row), flush=True)
+    return rows
+
+
+HEADER = f"{'method':<12}{'scene':<10}{'density':>8}{'ms p50':>9}{'ms p95':>9}{'MMTA':>8}{'MMTP mm':>9}{'MPJPE mm':>10}"
+
+
+def _line(r) -> str:
+    return (f"{r['method']:<12}{r['scene']:<10}{r['density']:>8}{r['ms_p50']:>9.1f}{r['ms_p95']:>9.1f}"
+            f"{r['mmta']:>8.3f}{r['mmtp_mm'] or 0:>9.1f}{r['mpjpe_mm']:>10.1f}")
+
+
+def format_table(rows) -> str:
+    return "\n".join([HEADER] + [_line(r) for r in rows])
