@@ -9,6 +9,8 @@
   per frame on one core for voxel sizes x methods x colourings, and accuracy against
   the true body volume (default: the simulated meeting3 with 5 cameras).
 - ``smartroom bench simulate``: render time per multi-camera frame of a simulated scene.
+- ``smartroom bench pose``: ms per frame of APF 600x6, SHBM-APF and DDM-APF at model
+  densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus", "reconstruction", "simulate")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose")
 
 
 def add_arguments(p) -> None:
@@ -33,6 +35,11 @@ def add_arguments(p) -> None:
     p.add_argument("--hull", action="store_true",
                    help="reconstruction: only the hull table of issue 8 (k=0, k=1, learnt occluders; MOG2 and "
                         "true silhouettes; volume, recall, fragmentation) on a simulated recording")
+    p.add_argument("--pose-methods", default="apf,shbm,ddm", help="pose: methods (apf, shbm, ddm, shbm+ddm)")
+    p.add_argument("--densities", default="1,2,3", help="pose: model density factors (Eq. 6.26, default 1,2,3)")
+    p.add_argument("--pose-scenes", default="gesture1,walk1", help="pose: simulated scenes (default gesture1,walk1)")
+    p.add_argument("--voxels", default="true", choices=("true", "hull"),
+                   help="pose: voxels of the true bodies or the visual hull of the true silhouettes")
 
 
 def _bus(args, out: Path) -> dict:
@@ -110,9 +117,27 @@ def _simulate(args, out: Path) -> dict:
     return bench_render(args.scene, frames=args.frames or 50, seconds=args.seconds, zenithal=args.zenithal)
 
 
+def _pose(args, out: Path) -> dict:
+    from app.benchmarks import pose
+    from app.errors import InputError
+
+    try:
+        densities = tuple(float(v) for v in args.densities.split(","))
+        voxel = float(args.voxel_sizes.split(",")[0]) / 100 if args.voxel_sizes != "2,3,4,5" else 0.02
+    except ValueError:
+        raise InputError(f"--densities {args.densities}: expected numbers like 1,2,3") from None
+    frames = args.frames or 75
+    print(f"smartroom bench pose: {frames} frames of {args.pose_scenes} at {100 * voxel:g} cm, one core",
+          file=sys.stderr)
+    print(pose.HEADER)
+    rows = pose.bench_pose(scenes=tuple(args.pose_scenes.split(",")), frames=frames, voxel_size=voxel,
+                           densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels)
+    return {"frames": frames, "voxel_size": voxel, "rows": rows}
+
+
 def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction,
-               "simulate": _simulate}[args.target](args, out)
+               "simulate": _simulate, "pose": _pose}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
