@@ -60,11 +60,13 @@ def draw_calibration(camera: Camera, image: np.ndarray | None, room_min, room_ma
         end = np.zeros(3)
         end[axis] = 1.0
         _polyline(img, camera, np.zeros(3), end, colour, thick + 2)
-    y = 22 * thick
+    scale = max(0.3, 0.45 * max(camera.width, camera.height) / 640)
+    step = int(30 * scale) + 4
+    y = step
     for text in [camera.name] + list(lines or []):
-        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55 * thick, (0, 0, 0), 3 * thick, cv2.LINE_AA)
-        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55 * thick, (255, 255, 255), thick, cv2.LINE_AA)
-        y += 22 * thick
+        cv2.putText(img, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(img, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+        y += step
     return img
 
 

@@ -49,12 +49,15 @@ class Simulator:
 
     ``cameras`` selects camera names (default: the four corner cameras, plus ``cam4``,
     the zenithal one, when ``zenithal``). ``width``/``height`` scale the cameras (the
-    intrinsics scale with them).
+    intrinsics scale with them). ``calibration`` replaces the room's cameras altogether
+    (e.g. cameras of different sizes, portrait ones, other frame rates: its fps is used).
     """
 
     def __init__(self, scene: str = DEFAULT_SCENE, seed: int = 0, fps: float = 25.0, seconds: float | None = None,
-                 width: int = 640, height: int = 480, zenithal: bool = False, cameras=None):
+                 width: int = 640, height: int = 480, zenithal: bool = False, cameras=None, calibration=None):
         self.scene = get_scene(scene)
+        if calibration is not None:
+            fps = calibration.fps
         if not (fps > 0 and math.isfinite(fps)):
             raise InputError(f"fps must be a positive number, got {fps!r}")
         if seconds is not None and not (seconds > 0 and math.isfinite(seconds)):
@@ -66,7 +69,7 @@ class Simulator:
         self.seconds = float(seconds) if seconds is not None else self.scene.seconds
         self.room, self.actors, self.conflicts = build_actors(self.scene, self.seed, self.seconds + 1.0)
         zenithal = zenithal or (cameras is not None and "cam4" in cameras)
-        calib = room_calibration(self.room, self.fps, width, height, zenithal)
+        calib = calibration or room_calibration(self.room, self.fps, width, height, zenithal)
         if cameras is not None:
             calib = calib.select(list(cameras))
         self.calibration = calib
@@ -168,8 +171,7 @@ class Simulator:
             from app.simulation.render import CameraView, RoomLighting
             self._lighting = RoomLighting(self.room)
             self._views = {cam.name: CameraView(cam, self.room, self._lighting) for cam in self.calibration.cameras}
-            cam0 = self.calibration.cameras[0]
-            n = cam0.width * cam0.height * 3
+            n = max(c.width * c.height for c in self.calibration.cameras) * 3
             rng = np.random.default_rng([self.seed, 7])
             self._noise = rng.normal(0.0, _noise_sigma(), n + 65536).astype(np.float32)
             self._noise_span = 65536
@@ -227,7 +229,7 @@ def _noise_sigma() -> float:
 def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None = None, fps: float = 25.0,
                      seed: int = 0, zenithal: bool = False, width: int = 640, height: int = 480,
                      occupancy: float | None = None, progress=None, codec: str = "mp4v",
-                     overwrite: bool = False) -> Path:
+                     overwrite: bool = False, calibration=None) -> Path:
     """Write a recording folder (CONTRACT §1) of a scene and return its path.
 
     ``videos/<cam>.mp4`` (the codec's compression included), ``background/<cam>.png``
@@ -236,14 +238,17 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     with ``occupancy`` (a voxel size in metres), ``occupancy.npz`` (the true occupied
     voxels per frame, see :mod:`app.simulation.occupancy`). ``progress(done, total,
     elapsed_s)`` is called after each frame. The folder appears complete or not at all
-    (written as ``<out>.partial`` then renamed).
+    (written as ``<out>.partial`` then renamed). ``calibration``: other cameras (see
+    :class:`Simulator`).
     """
     from app.recording import RecordingWriter
     from app.simulation.occupancy import OccupancyWriter
 
     if out is None:
         raise InputError("render_recording needs an output folder")
-    sim = Simulator(scene, seed=seed, fps=fps, seconds=seconds, width=width, height=height, zenithal=zenithal)
+    sim = Simulator(scene, seed=seed, fps=fps, seconds=seconds, width=width, height=height, zenithal=zenithal,
+                    calibration=calibration)
+    fps = sim.fps
     total = sim.frame_count()
     if total < 1:
         raise InputError(f"{seconds} s at {fps} fps is less than one frame")
