@@ -20,6 +20,7 @@ VERBS = {
     "eval": ("app.commands.evaluate", "score results against ground truth"),
     "bench": ("app.commands.bench", "throughput profiling against the real-time target"),
     "calibrate": ("app.commands.calibrate", "check, import and export camera calibrations"),
+    "train": ("app.commands.train", "train the person / no-person classifier of the tracker"),
     "export": ("app.commands.export", "write a run's people as BVH, C3D, TRC or CSV for other tools"),
     "view": ("app.commands.view", "replay a finished run in the viewer (meshcat in a browser)"),
 }

@@ -106,6 +106,12 @@ class PipelineView:
             return None
         return max(procs, key=lambda r: (round(r.busy, 2), r.dropped))
 
+    def tracks(self) -> int | None:
+        """People tracked now (the ``tracks`` figure of the tracking stage), or None."""
+        with self._lock:
+            counts = [msg.figures["tracks"] for _, msg in self._stats.values() if "tracks" in msg.figures]
+        return int(max(counts)) if counts else None
+
     def verdict(self, rtf: float | None) -> str:
         if rtf is None:
             return "waiting"
@@ -119,6 +125,8 @@ class PipelineView:
         head = [f"rtf={rtf:.2f}" if rtf is not None else "rtf=-", f"verdict={self.verdict(rtf).split(' ')[0]}"]
         if neck is not None and rtf is not None:
             head.append(f"bottleneck={neck.name} busy={neck.busy:.2f}")
+        if self.tracks() is not None:
+            head.append(f"tracks={self.tracks()}")
         parts = [" ".join(head)]
         for r in self.shown(rows):
             parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
@@ -136,6 +144,9 @@ class PipelineView:
         lines = [head]
         if neck is not None and rtf is not None:
             lines.append(f"bottleneck: {neck.name} (busy {100 * neck.busy:.0f}%, {neck.dropped} frames dropped)")
+        tracked = self.tracks()
+        if tracked is not None:
+            lines.append(f"people tracked: {tracked}")
         cols = f"{'stage':<16}{'fps in':>8}{'fps out':>9}{'lat p50':>9}{'lat p95':>9}{'drops':>7}{'cpu %':>7}{'busy':>6}"
         lines += ["", cols, "-" * len(cols)]
         for r in self.shown(rows):

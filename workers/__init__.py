@@ -14,6 +14,8 @@ KINDS = {
     "grabber": "workers.grabber:Grabber",
     "segmentation": "workers.segmentation:Segmentation",
     "reconstruction": "workers.reconstruction:Reconstruction",
+    "cca": "workers.cca:ComponentAnalysis",
+    "tracking": "workers.tracking:Tracking",
     "pose": "workers.pose:Pose",
     "recorder": "workers.recorder:Recorder",
     "viewer": "workers.viewer:Viewer",

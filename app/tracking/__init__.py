@@ -1,0 +1,1 @@
+"""Multi-person tracking (thesis chapter 4): components, person classifier, filters, track life."""

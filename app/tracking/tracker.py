@@ -1,0 +1,273 @@
+"""Multi-person tracking: one filter per target and the life of tracks (thesis §4.2.2-4.2.3).
+
+Each frame (:meth:`MultiTracker.update`):
+
+1. every target's filter steps (Naive §4.3.1, particle filter §4.3.2 or Sparse Sampling
+   §4.3.3, raw or colour; the filters model their interactions themselves);
+2. deletion (§4.2.3): a target that falls within ``duplicate_distance`` of an older one
+   for ``duplicate_frames`` frames is a duplicate; a target whose support (the weight of
+   the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
+   frames has lost its person (the thesis's low efficiency); a target whose component
+   the classifier calls no-person for ``no_person_frames`` frames is lost;
+3. creation (§4.2.3): the voxels of each component the classifier calls a person that
+   no target claims (farther than ``claim_radius`` from every target, xy) are a
+   candidate when the classifier also calls *them* a person (so a person merged into
+   the blob of a tracked one is found too) and their centroid is farther than
+   ``new_distance`` from every target; a candidate seen at about the same place for
+   ``confirm_frames`` frames becomes a track with a new id.
+
+The tracker reports confirmed targets only; ids are never reused.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from app.tracking.blobs import CLASSIFIER_FEATURES, component_features
+from app.tracking.naive import NaiveTarget
+from app.tracking.particle import ParticleTarget
+from app.tracking.scene import SceneFrame
+from app.tracking.sparse import SparseTarget
+
+__all__ = ["TrackerParams", "MultiTracker", "FILTERS"]
+
+#: filter name -> (target class, uses colour)
+FILTERS = {
+    "naive": (NaiveTarget, False),
+    "pf_raw": (ParticleTarget, False),
+    "pf_colour": (ParticleTarget, True),
+    "ss_raw": (SparseTarget, False),
+    "ss_colour": (SparseTarget, True),
+}
+
+
+@dataclass
+class TrackerParams:
+    filter: str = "ss_colour"
+    samples: int = 400             # N_s, Sparse Sampling
+    particles: int = 100           # N_p, particle filter
+    sx: float = 0.30               # s_x = s_y, the body ellipsoid's horizontal radius (m)
+    alpha: float = 1.5             # region enlargement (naive) and delta = alpha s_x (SS)
+    beta: float = 1.2              # naive: vertical enlargement
+    lam: float = 0.8               # lambda of Eq. 4.8 / 4.19
+    adapt: float = 0.9             # histogram adaptation of Eq. 4.11
+    coverage: float = 0.8          # gamma keeps the bins holding this share of H (Eq. 4.21)
+    ss_radius: int = 2             # r of C(y, q=26, r)
+    ss_step: float = 0.08          # SS propagation: largest offset per axis (m)
+    ss_reseed: float = 0.25        # SS: share of samples drawn afresh on the surface (0: the thesis)
+    ss_blocking: float = 1.0       # SS blocking k = ss_blocking / s_x^2
+    pf_sigma: tuple = (0.05, 0.05, 0.03)   # PF propagation noise (m)
+    z_min: float = 0.3
+    z_max: float = 1.4
+    new_distance: float = 0.5      # no new track closer than this to a target (m, xy)
+    new_distance_merged: float = 0.8   # the same for people merged into a tracked component
+    claim_radius: float = 0.45     # voxels this close to a target (xy) are its own
+    confirm_frames: int = 5
+    duplicate_distance: float = 0.25
+    duplicate_frames: int = 3
+    min_support_kg: float = 10.0
+    lost_frames: int = 8
+    no_person_frames: int = 12
+    share_frames: int = 8          # a younger track whose share is no person this long is a duplicate
+    refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
+    seed: int = 0
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "TrackerParams":
+        names = {f.name for f in fields(cls)}
+        unknown = set(values) - names
+        if unknown:
+            raise ValueError(f"unknown tracker parameters {sorted(unknown)}")
+        p = cls(**values)
+        if p.filter not in FILTERS:
+            raise ValueError(f"filter {p.filter!r} is not one of {', '.join(FILTERS)}")
+        return p
+
+
+class _Track:
+    __slots__ = ("id", "target", "age", "low_support", "no_person", "close")
+
+    def __init__(self, tid, target):
+        self.id, self.target = tid, target
+        self.age = 0
+        self.low_support = self.no_person = self.close = 0
+
+
+class MultiTracker:
+    """Tracks of one room (see module docstring). ``classifier``: the person / no-person
+    :class:`~app.tracking.classifier.DecisionTree` used on unclaimed voxels (None: the
+    components' own verdicts only)."""
+
+    def __init__(self, params: TrackerParams | None = None, classifier=None):
+        self.p = params or TrackerParams()
+        self.cls, self.colour = FILTERS[self.p.filter]
+        self.classifier = classifier
+        self.rng = np.random.default_rng(self.p.seed)
+        self.tracks: list[_Track] = []
+        self.candidates: list[tuple[np.ndarray, int]] = []
+        self.next_id = 1
+        self.deleted = 0
+
+    # -- one frame --------------------------------------------------------------------
+    def update(self, scene: SceneFrame) -> tuple[np.ndarray, np.ndarray]:
+        """Step every filter, delete and create tracks; ``(ids (T,), positions (T, 3))``."""
+        if self.tracks:
+            self.cls.step_all([t.target for t in self.tracks], scene)
+            if self.p.refine:
+                self._refine(scene)
+        self._delete(scene)
+        self._create(scene)
+        ids = np.array([t.id for t in self.tracks], dtype=np.int64)
+        pos = np.array([t.target.x for t in self.tracks], dtype=np.float64).reshape(-1, 3)
+        return ids, pos
+
+    def _refine(self, scene: SceneFrame) -> None:
+        """Beyond the thesis (``refine``): each target's estimate becomes the centroid of
+        the voxels within ``claim_radius`` (xy) that are nearer to it than to any other
+        target, so the filter's estimate is re-centred on its share of the mass (the
+        filters keep their samples / particles; identities stay theirs)."""
+        xs = np.array([t.target.x for t in self.tracks])
+        r = self.p.claim_radius
+        for i, t in enumerate(self.tracks):
+            near = scene.near_xy(xs[i], r)
+            if near.size == 0:
+                continue
+            pts = scene.centres[near]
+            if len(xs) > 1:
+                d = ((pts[:, None, :2] - xs[None, :, :2]) ** 2).sum(axis=2)
+                pts = pts[d.argmin(axis=1) == i]
+            if len(pts) >= 3:
+                t.target.x = pts.mean(axis=0)
+
+    def _make(self, position, scene):
+        if self.cls is NaiveTarget:
+            return NaiveTarget(position, scene, self.rng, self.p)
+        return self.cls(position, scene, self.rng, self.p, colour=self.colour)
+
+    def _shares(self, scene: SceneFrame):
+        """Host component of each track (the label with most voxels within ``s_x``, or -1)
+        and the person verdict of the track's share: the voxels of its host that are
+        nearer (xy) to it than to any other track the component hosts (§4.2.3: the
+        classifier applied to the voxels assigned to a target)."""
+        p = self.p
+        hosts = np.full(len(self.tracks), -1, dtype=np.int64)
+        support = np.zeros(len(self.tracks))
+        for i, t in enumerate(self.tracks):
+            near = scene.near_xy(t.target.x, p.sx)
+            support[i] = len(near) * scene.voxel_size ** 3 * 1100.0
+            if near.size:
+                hosts[i] = np.bincount(scene.labels[near]).argmax()
+        person = np.zeros(len(self.tracks), dtype=bool)
+        for c in np.unique(hosts[hosts >= 0]):
+            mine = np.nonzero(hosts == c)[0]
+            if len(mine) == 1 or self.classifier is None:
+                person[mine] = bool(scene.person[c])
+                continue
+            sel = np.nonzero(scene.labels == c)[0]
+            xs = np.array([self.tracks[i].target.x[:2] for i in mine])
+            owner = ((scene.centres[sel, None, :2] - xs[None]) ** 2).sum(axis=2).argmin(axis=1)
+            for k, i in enumerate(mine):
+                part = sel[owner == k]
+                if len(part) == 0:
+                    continue
+                f = component_features(scene.indices[part], np.zeros(len(part), np.int64), 1, scene.origin,
+                                       scene.voxel_size)
+                person[i] = bool(self.classifier.predict(f[:, :len(CLASSIFIER_FEATURES)])[0])
+        return hosts, person, support
+
+    def _delete(self, scene: SceneFrame) -> None:
+        p = self.p
+        hosts, person, support = self._shares(scene)
+        oldest = {}
+        for i, t in enumerate(self.tracks):
+            if hosts[i] >= 0 and (hosts[i] not in oldest or t.id < oldest[hosts[i]]):
+                oldest[hosts[i]] = t.id
+        keep = []
+        for i, t in enumerate(self.tracks):
+            t.age += 1
+            t.low_support = t.low_support + 1 if support[i] < p.min_support_kg else 0
+            t.no_person = 0 if person[i] else t.no_person + 1
+            dup = any(((o.target.x[:2] - t.target.x[:2]) ** 2).sum() < p.duplicate_distance ** 2
+                      for o in keep if o.id < t.id)
+            t.close = t.close + 1 if dup else 0
+            # a failing share is the younger track's fault while an older track holds the component
+            shared_fail = t.no_person >= p.share_frames and hosts[i] >= 0 and oldest[hosts[i]] != t.id
+            alone_fail = t.no_person >= p.no_person_frames
+            if t.low_support >= p.lost_frames or alone_fail or shared_fail or t.close >= p.duplicate_frames:
+                self.deleted += 1
+                continue
+            keep.append(t)
+        self.tracks = keep
+
+    def _create(self, scene: SceneFrame) -> None:
+        p = self.p
+        n = len(scene.centres)
+        if n == 0 or not scene.person.any():
+            self.candidates = []
+            return
+        claimed = np.zeros(n, dtype=bool)
+        hosts = set()
+        for t in self.tracks:
+            near = scene.near_xy(t.target.x, p.claim_radius)
+            claimed[near] = True
+            if near.size:
+                hosts.add(int(np.bincount(scene.labels[near]).argmax()))
+        free = ~claimed & scene.person[scene.labels]
+        found = []
+        targets_xy = np.array([t.target.x[:2] for t in self.tracks]).reshape(-1, 2)
+        for c in np.unique(scene.labels[free]):
+            sel = np.nonzero(free & (scene.labels == c))[0]
+            if c not in hosts:
+                sel = np.nonzero(scene.labels == c)[0]
+                feats = scene.features[c:c + 1]          # a component no target holds
+                distance = p.new_distance
+            else:                                        # the free part of a tracked component
+                distance = p.new_distance_merged
+                feats = component_features(scene.indices[sel], np.zeros(len(sel), np.int64), 1,
+                                           scene.origin, scene.voxel_size).astype(np.float64)
+                if self.classifier is not None and not self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])[0]:
+                    continue
+                if self.classifier is None and feats[0, 0] < 4 * p.min_support_kg:
+                    continue
+            centre = scene.centres[sel].mean(axis=0)
+            if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < distance ** 2).any():
+                continue
+            found.append(centre)
+        # confirmation: a candidate seen again near where it was the frame before
+        nxt = []
+        for c in found:
+            count = 1
+            for old, k in self.candidates:
+                if ((old[:2] - c[:2]) ** 2).sum() < p.new_distance ** 2:
+                    count = max(count, k + 1)
+            if count >= p.confirm_frames:
+                self.tracks.append(_Track(self.next_id, self._make(self._start(c), scene)))
+                self.next_id += 1
+            else:
+                nxt.append((c, count))
+        self.candidates = nxt
+
+    def _start(self, centre: np.ndarray) -> np.ndarray:
+        x = centre.copy()
+        x[2] = float(np.clip(x[2], self.p.z_min, self.p.z_max))
+        return x
+
+
+def warm_up() -> None:
+    """Compile the numba kernels of every filter on a tiny scene (cached on disk after
+    the first time), so a worker's first frame costs what the others do."""
+    from app.tracking.blobs import ComponentAnalysis
+    from app.tracking.scene import OccupancyIndex
+
+    dims = (12, 12, 12)
+    ii, jj, kk = np.meshgrid(np.arange(3, 9), np.arange(3, 9), np.arange(0, 10), indexing="ij")
+    idx = np.stack([ii, jj, kk], -1).reshape(-1, 3).astype(np.uint16)
+    colours = np.full((len(idx), 3), 128, np.uint8)
+    surface = np.ones(len(idx), bool)
+    labels, feats, person = ComponentAnalysis(dims, (0, 0, 0), 0.1)(idx)
+    occ = OccupancyIndex(dims)
+    for name in FILTERS:
+        tracker = MultiTracker(TrackerParams(filter=name, samples=20, particles=10, confirm_frames=1))
+        for f in range(3):
+            tracker.update(SceneFrame(f, 0.0, idx, colours, surface, labels, feats, person, (0, 0, 0), 0.1, occ))

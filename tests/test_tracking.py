@@ -1,0 +1,170 @@
+"""Multi-person tracking on synthetic voxel scenes with ground truth (no rendering: people
+are coloured upright cylinders voxelised directly, so every case is cheap and exact)."""
+import numpy as np
+import pytest
+
+from app.evaluation.tracking import score_tracking
+from app.tracking.classifier import load_tree
+from app.tracking.offline import VoxelFrame, track_frames
+from app.tracking.tracker import TrackerParams
+
+VS = 0.04
+DIMS = (125, 100, 63)
+GRID = {"origin": [0.0, 0.0, 0.0], "dims": list(DIMS), "voxel_size": VS}
+RED, BLUE, GREEN, GREY = (200, 30, 30), (30, 40, 200), (30, 180, 40), (120, 120, 110)
+
+
+def _cylinder(cx, cy, radius=0.24, height=1.72, z0=0.0):
+    r = int(np.ceil(radius / VS)) + 1
+    i0, j0 = int(cx / VS), int(cy / VS)
+    ii, jj, kk = np.meshgrid(np.arange(i0 - r, i0 + r + 1), np.arange(j0 - r, j0 + r + 1),
+                             np.arange(int(z0 / VS), int((z0 + height) / VS)), indexing="ij")
+    c = (np.stack([ii, jj, kk], -1).reshape(-1, 3) + 0.5) * VS
+    keep = ((c[:, 0] - cx) ** 2 + (c[:, 1] - cy) ** 2 <= radius ** 2)
+    return np.stack([ii, jj, kk], -1).reshape(-1, 3)[keep]
+
+
+def _box(x0, y0, x1, y1, z1, z0=0.0):
+    ii, jj, kk = np.meshgrid(np.arange(int(x0 / VS), int(x1 / VS)), np.arange(int(y0 / VS), int(y1 / VS)),
+                             np.arange(int(z0 / VS), int(z1 / VS)), indexing="ij")
+    return np.stack([ii, jj, kk], -1).reshape(-1, 3)
+
+
+def frame_of(f, parts):
+    """One voxel frame from ``[(indices, top colour, bottom colour), ...]``: union of the
+    parts, the surface (a 6-neighbour empty) coloured like the reconstruction does."""
+    idx = np.concatenate([p[0] for p in parts])
+    col = np.concatenate([np.where((p[0][:, 2:3] * VS) > 0.9, np.array(p[1], np.uint8), np.array(p[2], np.uint8))
+                          for p in parts])
+    flat = (idx[:, 0] * DIMS[1] + idx[:, 1]) * DIMS[2] + idx[:, 2]
+    flat, first = np.unique(flat, return_index=True)
+    idx, col = idx[first].astype(np.uint16), col[first].astype(np.uint8)
+    occ = np.zeros(DIMS, bool)
+    occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    surface = np.zeros(len(idx), bool)
+    for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+        q = idx.astype(np.int64) + d
+        inside = (q >= 0).all(1) & (q < DIMS).all(1)
+        surface |= ~inside | ~occ[np.clip(q[:, 0], 0, DIMS[0] - 1), np.clip(q[:, 1], 0, DIMS[1] - 1),
+                                  np.clip(q[:, 2], 0, DIMS[2] - 1)]
+    col[~surface] = 0
+    return VoxelFrame(f, f / 25, idx, col, surface)
+
+
+def run(frames, filt="ss_colour", **kw):
+    return track_frames(frames, GRID, TrackerParams(filter=filt, **kw), load_tree())
+
+
+def truth_of(positions):
+    """``{frame: (ids, positions)}`` from ``{frame: {id: (x, y)}}``."""
+    return {f: (np.array(list(p), np.int64), np.array([[x, y, 0.9] for x, y in p.values()]).reshape(-1, 3))
+            for f, p in positions.items()}
+
+
+def crossing(n=90, gap=0.0):
+    """Two people walking towards each other along x, ``gap`` apart in y (their voxels
+    merge into one component while they pass), one in red over blue, one in green over grey."""
+    frames, truth = [], {}
+    for f in range(n):
+        xa = 1.0 + 3.0 * f / (n - 1)
+        xb = 4.0 - 3.0 * f / (n - 1)
+        ya, yb = 2.0 - gap / 2 - 0.24, 2.0 + gap / 2 + 0.24
+        frames.append(frame_of(f, [(_cylinder(xa, ya), RED, BLUE), (_cylinder(xb, yb), GREEN, GREY)]))
+        truth[f] = {1: (xa, ya), 2: (xb, yb)}
+    return frames, truth_of(truth)
+
+
+@pytest.fixture(scope="module")
+def crossing_scene():
+    return crossing()
+
+
+def test_identity_kept_through_a_crossing_with_colour(crossing_scene):
+    frames, truth = crossing_scene
+    res = run(frames, "ss_colour")
+    s = score_tracking(truth, res)
+    assert s.mismatches == 0, s.summary()
+    assert s.mota >= 0.9 and s.idf1 >= 0.9, s.summary()
+    assert s.motp_mm < 60, s.summary()
+    # the merged frames really were one component
+    from app.tracking.blobs import ComponentAnalysis
+    cca = ComponentAnalysis(DIMS, [0, 0, 0], VS)
+    assert len(cca(frames[45].indices)[1]) == 1
+
+
+@pytest.mark.parametrize("filt", ["naive", "pf_colour", "ss_raw"])
+def test_every_filter_tracks_the_crossing(crossing_scene, filt):
+    frames, truth = crossing_scene
+    s = score_tracking(truth, run(frames, filt, particles=50, samples=200))
+    assert s.mota >= 0.8, (filt, s.summary())
+
+
+def test_people_standing_together_keep_their_own_tracks():
+    """Two people side by side, touching (one connected component), swaying: two tracks,
+    each on its own person."""
+    frames, truth = [], {}
+    for f in range(60):
+        dx = 0.1 * np.sin(f / 6)
+        a, b = (2.0 + dx, 2.0), (2.52 + dx, 2.0)
+        frames.append(frame_of(f, [(_cylinder(*a), RED, BLUE), (_cylinder(*b), GREEN, GREY)]))
+        truth[f] = {1: a, 2: b}
+    truth = truth_of(truth)
+    s = score_tracking(truth, run(frames))
+    assert s.mota >= 0.85 and s.mismatches == 0 and s.motp_mm < 80, s.summary()
+
+
+def test_furniture_never_becomes_a_track():
+    """A table and a chair (taller than a person is wide, lower than a person) in the room
+    for 60 frames, with one person walking past them: one track only."""
+    table = _box(1.5, 1.5, 3.1, 2.3, 0.75)
+    chair = _box(3.4, 1.6, 3.9, 2.1, 0.95)
+    frames, truth = [], {}
+    for f in range(60):
+        x = 1.0 + 3 * f / 59
+        frames.append(frame_of(f, [(table, GREY, GREY), (chair, GREY, GREY), (_cylinder(x, 3.0), RED, BLUE)]))
+        truth[f] = {1: (x, 3.0)}
+    res = run(frames)
+    assert max(len(ids) for ids, _ in res.values()) == 1
+    s = score_tracking(truth_of(truth), res)
+    assert s.false_positives == 0 and s.mota >= 0.9, s.summary()
+
+
+def test_leaving_ends_a_track_and_entering_gets_a_new_id():
+    """One person walks out (their voxels vanish at the door), another comes in later."""
+    frames, truth = [], {}
+    for f in range(110):
+        parts, t = [], {}
+        if f < 40:
+            x = 2.5 - 2.0 * f / 39
+            parts.append((_cylinder(x, 3.5), RED, BLUE))
+            t[1] = (x, 3.5)
+        if f >= 60:
+            x = 0.5 + 2.0 * (f - 60) / 49
+            parts.append((_cylinder(x, 3.5), GREEN, GREY))
+            t[2] = (x, 3.5)
+        frames.append(frame_of(f, parts) if parts else VoxelFrame(f, f / 25, np.zeros((0, 3), np.uint16),
+                                                                   np.zeros((0, 3), np.uint8), np.zeros(0, bool)))
+        truth[f] = t
+    res = run(frames)
+    first = {int(i) for i in res[30][0]}
+    assert len(first) == 1
+    assert len(res[55][0]) == 0                      # the first track ended
+    last = {int(i) for i in res[109][0]}
+    assert len(last) == 1 and not (last & first)     # a new id for the newcomer
+    s = score_tracking(truth_of(truth), res)
+    # what is lost: the frames before a new track is confirmed and after a person leaves
+    assert s.mota >= 0.8 and s.mismatches == 0, s.summary()
+
+
+def test_scores_on_a_short_scene_of_three_people():
+    """Three people on separate paths, two of them crossing: CLEAR MOT and IDF1 against truth."""
+    frames, truth = [], {}
+    for f in range(75):
+        a = (1.0 + 2.5 * f / 74, 1.2)
+        b = (3.5, 0.8 + 2.5 * f / 74)
+        c = (0.8 + 0.3 * np.sin(f / 10), 3.2)
+        frames.append(frame_of(f, [(_cylinder(*a), RED, BLUE), (_cylinder(*b), GREEN, GREY),
+                                   (_cylinder(*c), BLUE, GREY)]))
+        truth[f] = {1: a, 2: b, 3: c}
+    s = score_tracking(truth_of(truth), run(frames))
+    assert s.mota >= 0.9 and s.idf1 >= 0.9 and s.motp_mm < 60, s.summary()
