@@ -37,13 +37,14 @@ def format_room(lo, hi) -> str:
 def estimate_room(cameras, min_views: int | None = None, step: float = 0.05,
                   height: float = 2.2) -> tuple[np.ndarray, np.ndarray]:
     """The box over the floor area that at least ``min_views`` cameras see (default: 2,
-    or 1 with a single camera), searched between the camera centres (cameras hang on the
-    walls and in the corners of the room they watch), up to ``height`` metres (a standing
+    or 1 with a single camera), searched within the span of the camera centres (cameras
+    hang on the walls and in the corners of the room they watch; 5 m around them when
+    they stand in a row), up to ``height`` metres (a standing
     person with raised arms; lower when every camera hangs lower)."""
     cams = list(cameras)
     k = min_views or min(2, len(cams))
     centres = np.array([c.centre for c in cams])
-    lo, hi = centres[:, :2].min(axis=0) - 0.5, centres[:, :2].max(axis=0) + 0.5
+    lo, hi = centres[:, :2].min(axis=0), centres[:, :2].max(axis=0)
     if np.any(hi - lo < 1.0):  # cameras in a row: look 5 m around them
         lo, hi = centres[:, :2].min(axis=0) - 5.0, centres[:, :2].max(axis=0) + 5.0
     xs, ys = np.arange(lo[0], hi[0] + step, step), np.arange(lo[1], hi[1] + step, step)
@@ -58,4 +59,4 @@ def estimate_room(cameras, min_views: int | None = None, step: float = 0.05,
     top = float(min(height, max(1.0, np.median(centres[:, 2]))))
     lo3 = np.array([*(np.floor(pts[:, :2].min(axis=0) / step) * step), 0.0])
     hi3 = np.array([*(np.ceil(pts[:, :2].max(axis=0) / step) * step), top])
-    return lo3, hi3
+    return np.round(lo3, 6), np.round(hi3, 6)

@@ -151,8 +151,10 @@ def _save(cameras, fps, lo, hi, out):
 
 
 def _summary(calib) -> None:
-    print(f"{calib.path}: {len(calib.cameras)} cameras at {calib.fps:g} fps, room "
-          f"{calib.room_min.tolist()} .. {calib.room_max.tolist()} m")
+    import numpy as np
+
+    room = " .. ".join("[" + ", ".join(f"{v:g}" for v in np.round(c, 4)) + "]" for c in (calib.room_min, calib.room_max))
+    print(f"{calib.path}: {len(calib.cameras)} cameras at {calib.fps:g} fps, room {room} m")
     for c in calib.cameras:
         hfov = 2 * math.degrees(math.atan(c.width / (2 * c.K[0, 0])))
         print(f"  {c.name}: {c.width}x{c.height}, hfov {hfov:.0f} deg, centre "
@@ -257,7 +259,7 @@ def _load_intrinsics(items):
         return list(load_calibration(items[0]).cameras)
     cams = []
     for name, path in _pairs(items, "--intrinsics"):
-        cams += read_opencv(path, name=name, units="m").cameras
+        cams += read_opencv(path, name=name, units="m", pose=False).cameras
     return cams
 
 

@@ -74,8 +74,9 @@ def _dist(values, path, where) -> np.ndarray:
     return d[:5] if d.size else np.zeros(5)
 
 
-def read_opencv(path, name: str | None = None, units: str = "m", size=None) -> Imported:
-    """One camera from an OpenCV FileStorage file; ``name`` defaults to the file's stem."""
+def read_opencv(path, name: str | None = None, units: str = "m", size=None, pose: bool = True) -> Imported:
+    """One camera from an OpenCV FileStorage file; ``name`` defaults to the file's stem.
+    With ``pose=False`` (intrinsics only) a missing pose is the identity."""
     p = Path(path)
     fs = _open(p)
     try:
@@ -87,10 +88,10 @@ def read_opencv(path, name: str | None = None, units: str = "m", size=None) -> I
         dist = _dist(_value(dnode), p, dname) if dnode is not None else np.zeros(5)
         rname, rnode = _node(fs, _R)
         tname, tnode = _node(fs, _T)
-        if rnode is None or tnode is None:
+        if (rnode is None or tnode is None) and pose:
             raise fail(p, "", f"no pose (needs one of {', '.join(_R)} and one of {', '.join(_T)})")
-        R = rotation(_value(rnode), p, rname)
-        t = numbers(_value(tnode), 3, p, tname)
+        R = rotation(_value(rnode), p, rname) if rnode is not None else np.eye(3)
+        t = numbers(_value(tnode), 3, p, tname) if tnode is not None else np.zeros(3)
         w = h = None
         for wk, hk in (("image_width", "image_height"), ("width", "height"), ("W", "H")):
             wn, hn = fs.getNode(wk), fs.getNode(hk)
