@@ -49,6 +49,8 @@ class Reconstruction(Worker):
         "camera_timeout_s": 1.0,     # a camera silent this long is not waited for
         "cache": False,              # keep projection tables on disk between runs (~140 MB at 2 cm)
         "min_top": 0.25,             # drop blobs lower than this (m): floor shadows; 0 = thesis (keep all)
+        "occlusion": "none",         # none (§2.2.4) or learnt: occluder masks learnt over the run (Guan et al. 2006)
+        "learn_every": 1,            # learnt occluders: learn from every n-th frame (0: stop learning)
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
@@ -71,11 +73,14 @@ class Reconstruction(Worker):
         if not 0.005 <= p["voxel_size"] <= 0.5:
             raise InputError(f"reconstruction: voxel_size {p['voxel_size']} m is outside 0.005 .. 0.5 m")
         mask_sizes, colour_sizes = self._expected_sizes(calib)
+        if p["method"] == "fused":   # needs distance maps, which the segmentation worker does not send yet
+            raise InputError("reconstruction: method fused is offline only (smartroom bench reconstruction --hull)")
         try:
             self.reconstructor = Reconstructor(
                 calib, p["voxel_size"], mask_sizes=mask_sizes, colour_sizes=colour_sizes,
                 tolerance=p["tolerance"], min_views=p["min_views"], method=p["method"],
-                colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"])
+                colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"],
+                occlusion=p["occlusion"], learn_every=p["learn_every"])
         except ValueError as exc:
             raise InputError(f"reconstruction: {exc}") from None
         self.calibration = calib

@@ -209,14 +209,18 @@ def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolera
 
 @njit(cache=True, nogil=True)
 def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent, support, brick_key, local_key,
-                  shift_i, shift_j, flag, flag_depth):
+                  shift_i, shift_j, flag, flag_depth, free_depth):
     """Evidence for occluders (Guan et al. 2006): for every voxel of ``cells`` that
     exactly ``dissent`` cameras call background (``votes`` with the occluders learnt
     so far, as :func:`carve_cells_occluded` reads them) while at least ``support`` call
     it foreground, set ``flag`` (the concatenated masks' pixels, as ``votes``) at the
     pixels where the voxel is background in the masks (``raw`` votes: the dissenting
     cameras and those abstaining behind an occluder) and keep there the least depth of
-    such a voxel (``flag_depth``). Returns the number of such voxels."""
+    such a voxel (``flag_depth``). A camera that sees a voxel all cameras agree on as
+    foreground sees the room free up to that depth (``free_depth``, the largest such
+    depth per pixel): evidence at or in front of it is a contradiction (a phantom where
+    the cones of other people meet, not something hidden) and is not counted.
+    Returns the number of voxels that gave evidence."""
     n_cams = lut.shape[1]
     bshift = np.int64(0)
     while (np.int64(1) << bshift) < local_key.shape[0]:
@@ -238,15 +242,30 @@ def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent,
             for c in range(n_cams):
                 q = lut[p, c]
                 total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
-            if (total >> VOTE_SHIFT) == dissent and (total & MAX_CAMERAS) >= support:
-                count += 1
+            if (total & MAX_CAMERAS) < support:
+                continue
+            nbg = total >> VOTE_SHIFT
+            if nbg == 0:
+                for c in range(n_cams):
+                    q = lut[p, c]
+                    if raw[q] == FG_VOTE:
+                        z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
+                        if z > free_depth[q]:
+                            free_depth[q] = z
+            elif nbg == dissent:
+                counted = False
                 for c in range(n_cams):
                     q = lut[p, c]
                     if raw[q] == BG_VOTE:
-                        flag[q] = 1
                         z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
+                        if z <= free_depth[q]:
+                            continue
+                        counted = True
+                        flag[q] = 1
                         if z < flag_depth[q]:
                             flag_depth[q] = z
+                if counted:
+                    count += 1
     return count
 
 

@@ -24,6 +24,12 @@ Behind an occluder pixel the camera abstains (as where it does not see the voxel
 the carving is ``tolerance = 0`` everywhere else. Nothing about the room's furniture
 is given: the masks are learnt from the masks and the reconstruction alone.
 
+Seen free space (Guan et al.'s argument that an occluder lies in front of what it
+hides): where a camera sees a person (a voxel every camera agrees on) through a pixel,
+nothing static hides that pixel up to the person's depth, so a miss at or in front of
+the deepest such depth is a phantom of the other views, not an occlusion, and gives no
+evidence.
+
 Depth (after Guan et al., whose occlusion is per pixel and depth): each occluder
 pixel keeps the least depth (camera z) of the voxels that gave evidence for it, and
 the camera abstains only on voxels at or past that depth less ``margin``; on nearer
@@ -51,6 +57,7 @@ class OccluderModel:
         self.seen = np.zeros(mask_total, dtype=np.float32)
         self.flag = np.zeros(mask_total + 1, dtype=np.uint8)     # + the "not seen" sentinel, as the votes
         self.flag_depth = np.full(mask_total + 1, np.inf, dtype=np.float32)
+        self.free_depth = np.zeros(mask_total + 1, dtype=np.float32)       # seen free up to (m)
         self.depth = np.full(mask_total, np.inf, dtype=np.float32)          # least evidence depth (m)
         self.occ_depth = np.full(mask_total + 1, np.inf, dtype=np.float32)  # abstain from here on (m)
         self.margin = float(margin)
@@ -80,6 +87,7 @@ class OccluderModel:
         self.seen[:] = 0
         self.flag[:] = 0
         self.flag_depth[:] = np.inf
+        self.free_depth[:] = 0
         self.depth[:] = np.inf
         self.occ_depth[:] = np.inf
         self.occluded[:] = 0

@@ -259,7 +259,7 @@ class Reconstructor:
         occ, lay = self.occluders, self.layout
         return dissent_cells(cells, shift, self.table.lut, self._votes, self._raw, self._depth_coef, occ.occ_depth,
                              dissent, occ.support, lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j,
-                             occ.flag, occ.flag_depth)
+                             occ.flag, occ.flag_depth, occ.free_depth)
 
     def _carve_voxels(self, cells, shift, k, mv, n, early_exit) -> int:
         """The exact per-voxel test of ``cells``, with or without occluders."""
