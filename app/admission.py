@@ -5,9 +5,11 @@ here the frame numbers are checked against the stream they claim to belong to:
 
 - :class:`FrameWindow` follows one stream (one key) through the source's epochs. A
   frame number far from the newest one of the current epoch is rejected, never used
-  to size anything. A newer epoch (a source that restarted) is followed once it has
-  shown :data:`EPOCH_CONFIRM` distinct frame numbers close to each other, so one
-  forged message cannot move a stage to a stream that does not exist.
+  to size anything. A newer epoch (a source that restarted) is followed only once the
+  current one has gone quiet for :data:`EPOCH_QUIET_S` (a source that restarts is
+  silent while it starts again; a forger beside a running source is not followed),
+  and then at once if it carries on the frame numbers (a recording resumed), or
+  after :data:`EPOCH_CONFIRM` distinct nearby frames if it starts anew (a live camera).
 - :class:`Rejections` counts what was turned away per key and reason and logs it at
   most once per :data:`LOG_PERIOD_S` per reason, with the count since the last line.
 
@@ -20,7 +22,8 @@ import time
 __all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM"]
 
 WINDOW = 1000          # frames either side of the newest accepted one (40 s at 25 fps)
-EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch
+EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch starting anew
+EPOCH_QUIET_S = 0.5    # silence of the current epoch before a newer one may take over
 LOG_PERIOD_S = 5.0
 
 
@@ -28,33 +31,42 @@ class FrameWindow:
     """The epoch and newest frame of one stream; :meth:`admit` says whether a frame
     belongs to it (None) or why not (a short reason)."""
 
-    def __init__(self, window: int = WINDOW):
+    def __init__(self, window: int = WINDOW, clock=time.monotonic):
         self.window = int(window)
+        self.clock = clock
         self.epoch: int | None = None
         self.newest = -1
+        self.last_seen = 0.0          # when the current epoch last delivered
         self._candidate: tuple[int, set] | None = None   # (epoch, frames seen) of a newer epoch
 
     def admit(self, epoch: int, frame: int) -> str | None:
+        now = self.clock()
         if frame < 0:
             return "negative frame"
         if self.epoch is None:          # the first frame of the stream sets it
-            self.epoch, self.newest = epoch, frame
+            self.epoch, self.newest, self.last_seen = epoch, frame, now
             return None
         if epoch == self.epoch:
             if abs(frame - self.newest) > self.window:
                 return "frame outside the window"
             self.newest = max(self.newest, frame)
+            self.last_seen = now
             return None
         if epoch < self.epoch:
             return "old epoch"
-        # a newer epoch: follow it once it is confirmed by nearby frames
+        if now - self.last_seen < EPOCH_QUIET_S:
+            return "new epoch while the current one is running"
+        if abs(frame - self.newest) <= self.window:   # the same numbering carried on
+            self.epoch, self.newest, self.last_seen, self._candidate = epoch, frame, now, None
+            return None
+        # a new numbering: follow it once it is confirmed by nearby frames
         cand_epoch, frames = self._candidate if self._candidate and self._candidate[0] == epoch else (epoch, set())
         if frames and min(abs(frame - f) for f in frames) > self.window:
             frames = set()
         frames.add(frame)
         self._candidate = (cand_epoch, frames)
         if len(frames) >= EPOCH_CONFIRM:
-            self.epoch, self.newest, self._candidate = epoch, max(frames), None
+            self.epoch, self.newest, self.last_seen, self._candidate = epoch, max(frames), now, None
             return None
         return "unconfirmed epoch"
 

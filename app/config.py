@@ -76,6 +76,7 @@ class Layout:
     workers: list[WorkerSpec]
     run: RunSpec = field(default_factory=RunSpec)
     path: str = "layout.yaml"
+    restarts: dict = field(default_factory=dict)   # the launcher's restart policy (see _restarts)
 
     def worker(self, name: str) -> WorkerSpec:
         for w in self.workers:
@@ -89,6 +90,7 @@ class Layout:
             "bus": asdict(self.bus),
             "workers": [asdict(w) for w in self.workers],
             "run": asdict(self.run),
+            **({"restarts": dict(self.restarts)} if self.restarts else {}),
         }
 
     def save(self, path) -> None:
@@ -163,7 +165,7 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
 
     if not isinstance(data, dict):
         raise LayoutError(f"{path}: expected a mapping with room, bus and workers")
-    unknown = set(data) - {"room", "bus", "workers", "run"}
+    unknown = set(data) - {"room", "bus", "workers", "run", "restarts"}
     if unknown:
         raise LayoutError(f"{path}: unknown section {str(sorted(map(str, unknown))[0])!r} (known: room, bus, workers)")
     room = data.get("room", "smartroom")
@@ -205,7 +207,28 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
                                   restart=bool(e.get("restart", True))))
     if not any(not worker_class(w.kind).CONSUMES for w in workers):
         raise LayoutError(f"{path}: no source: the layout needs a worker that produces frames (kind: grabber)")
-    return Layout(room=room, bus=bus, workers=workers, run=_run_spec(data.get("run"), path), path=path)
+    return Layout(room=room, bus=bus, workers=workers, run=_run_spec(data.get("run"), path), path=path,
+                  restarts=_restarts(data.get("restarts"), path))
+
+
+RESTART_KEYS = {"window_s": (1.0, 86400.0), "storm": (2, 1000), "first_delay_s": (0.0, 60.0),
+                "max_delay_s": (0.0, 600.0)}
+
+
+def _restarts(data, path: str) -> dict:
+    """The ``restarts`` section: when the launcher restarts a crashed worker (see
+    :class:`app.launcher.RestartPolicy`): ``{window_s, storm, first_delay_s, max_delay_s}``."""
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise LayoutError(f"{path}: restarts must be a mapping of {', '.join(RESTART_KEYS)}")
+    for key, value in data.items():
+        if key not in RESTART_KEYS:
+            raise LayoutError(f"{path}: restarts: unknown key {str(key)!r} (known: {', '.join(RESTART_KEYS)})")
+        lo, hi = RESTART_KEYS[key]
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not lo <= value <= hi:
+            raise LayoutError(f"{path}: restarts: {key} = {value!r} is outside {lo} .. {hi}")
+    return dict(data)
 
 
 def _run_spec(data, path: str) -> RunSpec:

@@ -115,7 +115,7 @@ class Launcher:
 
         self.layout = layout.copy()
         self.verbose = verbose
-        self.policy = policy or RestartPolicy()
+        self.policy = policy or RestartPolicy(**layout.restarts)
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / ERROR_DIR).mkdir(exist_ok=True)

@@ -171,13 +171,6 @@ class StageLedger:
         recorded after that state was saved."""
         self.seen = _FrameSet.from_ranges(state.get("seen"))
         self.done = _FrameSet.from_ranges(state.get("done"))
-        for kind, frame in journal:
-            if kind == "i" and self.seen.add(frame):
-                self.items_in += 1
-                self.last_frame = max(self.last_frame, frame)
-            elif kind == "o" and self.done.add(frame):
-                self.items_out += 1
-                self.newest_out = max(self.newest_out, frame)
         for name in ("items_in", "items_out", "items_dropped", "bad_messages", "last_frame", "newest_out"):
             v = state.get(name)
             if isinstance(v, int):
@@ -187,6 +180,13 @@ class StageLedger:
             if isinstance(v, (int, float)):
                 setattr(self, name, float(v))
         self.process_total = float(state.get("process_total") or 0.0)
+        for kind, frame in journal:
+            if kind == "i" and self.seen.add(frame):
+                self.items_in += 1
+                self.last_frame = max(self.last_frame, frame)
+            elif kind == "o" and self.done.add(frame):
+                self.items_out += 1
+                self.newest_out = max(self.newest_out, frame)
 
     def bad_message(self) -> None:
         self.bad_messages += 1

@@ -134,6 +134,9 @@ class Worker:
     INBOX_DEPTH: ClassVar[int] = 1       # latest-frame-wins by default (live)
     ACCEPTS: ClassVar[tuple] = ()        # message types handle() takes (others are bad messages)
     DROP_OUTPUT: ClassVar[bool] = True   # live data outputs use congestion control DROP
+    #: a frame is finished once handle() returns; stages that hold frames back (assembling
+    #: cameras) set False and call :meth:`finished` themselves
+    ACK_ON_HANDLE: ClassVar[bool] = True
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
         self.spec = spec
@@ -241,6 +244,13 @@ class Worker:
         if counts:
             self.ledger.emitted(msg.frame, msg.stamp)
 
+    def finished(self, frame: int) -> None:
+        """This stage is done with ``frame`` (put out, or given up): an unpaced or
+        offline source may send the frames after it."""
+        if self._ack is not None and (frame > self._acked or self._ack_epoch != self._epoch):
+            self._acked, self._ack_epoch = frame, self._epoch
+            self._ack.put(Ack(frame=frame, stamp=time.time(), worker=self.name, epoch=self._epoch))
+
     def status(self, text: str) -> None:
         """Say what the worker is doing before frames flow (compiling kernels, building a
         background): shown by the monitor and the launcher's progress line."""
@@ -273,6 +283,12 @@ class Worker:
     def stream(self) -> EndOfStream | None:
         """The source's end-of-stream message once known (frame count, fps)."""
         return self._source_eos
+
+    @classmethod
+    def acknowledges(cls, spec: WorkerSpec, layout: Layout) -> bool:
+        """Whether this worker, in ``layout``, tells an unpaced or offline source which
+        frames it has finished (the source never runs more than a window ahead of it)."""
+        return bool(cls.ORDER and cls.PRODUCES)
 
     def upstream(self) -> list[str]:
         """Names of the workers whose end of stream this one waits for."""
@@ -523,9 +539,8 @@ class Worker:
                 t0 = time.perf_counter()
                 self.handle(key, msg)
                 self.ledger.processed(time.perf_counter() - t0, msg.frame)
-                if self._ack is not None and self.ledger.newest_out > self._acked:
-                    self._acked = self.ledger.newest_out  # the newest frame this stage has put out
-                    self._ack.put(Ack(frame=self._acked, stamp=msg.stamp, worker=self.name, epoch=msg.epoch))
+                if self.ACK_ON_HANDLE:
+                    self.finished(msg.frame)
             elif self._ended():
                 self.input_ended = True
                 break
@@ -565,8 +580,8 @@ class Worker:
             if "stats" in self.CONSUMES:
                 self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
             # an unpaced or offline source sends frames as fast as the stages acknowledge them
-            self._ack, self._acked = None, -1
-            if (self.lossless or not self.layout.run.pace) and self.ORDER and self.PRODUCES:
+            self._ack, self._acked, self._ack_epoch = None, -1, None
+            if (self.lossless or not self.layout.run.pace) and self.acknowledges(self.spec, self.layout):
                 self._ack = Publisher(self.session, self.keys.ack(self.name), droppable=False)
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
             self.log.info("ready (%s)", ", ".join(self.subscriptions()) or "source")

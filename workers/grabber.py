@@ -23,6 +23,8 @@ from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
 from workers.base import Worker
 
+MISSING_WAIT_S = 60.0   # offline: how long a crashed stage is waited for before frames go on without it
+
 
 class Grabber(Worker):
     KIND = "grabber"
@@ -72,16 +74,16 @@ class Grabber(Worker):
 
     # -- across restarts -------------------------------------------------------------
     _resume: int | None = None
-    produced = 0
-
-    def extra_state(self) -> dict:
-        return {"next": self.ledger.newest_out + 1, "produced": self.produced}
 
     def restore_state(self, state: dict) -> None:
-        if isinstance(state.get("next"), int) and not self.layout.run.live:
-            self._resume = state["next"]
-        if isinstance(state.get("produced"), int):
-            self.produced = state["produced"]
+        """A restarted grabber carries on after the last frame it sent (its ledger, with
+        the journal, knows it exactly); live cameras simply go on."""
+        if not self.layout.run.live and self.ledger.newest_out >= 0:
+            self._resume = self.ledger.newest_out + 1
+
+    @property
+    def produced(self) -> int:
+        return self.ledger.done.count
 
     # -- frames ------------------------------------------------------------------------
     def _wait_until_ready(self) -> None:
@@ -122,14 +124,13 @@ class Grabber(Worker):
         for cam, image in images.items():
             self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
                                                      image=image, epoch=self.epoch))
-        self.produced += 1
         return True
 
     def _filters(self) -> list[str]:
-        """Stages between this source and the sinks, which acknowledge frames."""
+        """The workers that acknowledge frames (the stages, and sinks that keep results)."""
         from workers import worker_class
         return [w.name for w in self.layout.workers
-                if worker_class(w.kind).ORDER and worker_class(w.kind).PRODUCES
+                if w.name != self.name and worker_class(w.kind).acknowledges(w, self.layout)
                 and not (self.layout.run.headless and worker_class(w.kind).DISPLAY)]
 
     def _on_ack(self, sample) -> None:
@@ -149,13 +150,19 @@ class Grabber(Worker):
             self._ack_cond.notify_all()
 
     def _wait_for_acks(self, index: int) -> None:
-        """Hold frame ``index`` until every stage that is alive has put out frame
-        ``index - window``. A stage that comes back after a crash starts level with
-        the stream (it cannot acknowledge frames that were sent while it was away)."""
+        """Hold frame ``index`` until every acknowledging worker has finished frame
+        ``index - window``. A worker that has left the bus (crashed) is waited for while
+        the launcher restarts it (at most ``MISSING_WAIT_S``), so no frame goes past it
+        meanwhile; it comes back level with the stream (frames that were in flight to it
+        are lost, and counted)."""
         if not hasattr(self, "_ack_sub"):
             self._ack_names = self._filters()
             self._ack_sub = self.session.declare_subscriber(self.keys.ack(), self._on_ack)
             self._was_alive = set(self.alive)
+            # nothing of this epoch is in flight yet (frames an earlier incarnation sent were
+            # acknowledged in its epoch)
+            self._acks = {n: index - 1 for n in self._ack_names}
+            self._missing_since: dict[str, float] = {}
         need = index - self.params["window"]
         t0 = time.perf_counter()
         next_note = time.monotonic() + 10.0
@@ -168,7 +175,15 @@ class Grabber(Worker):
                     for n in self._ack_names:
                         self._acks[n] = max(self._acks.get(n, -1), index - 1)
                 self._was_alive = alive
-                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < need]
+                now = time.monotonic()
+                for n in self._ack_names:
+                    if n in alive:
+                        self._missing_since.pop(n, None)
+                    else:
+                        self._missing_since.setdefault(n, now)
+                waiting = [n for n in self._ack_names
+                           if (n in alive and self._acks.get(n, -1) < need)
+                           or (n not in alive and now - self._missing_since[n] < MISSING_WAIT_S)]
                 if not waiting:
                     break
                 if time.monotonic() > next_note:

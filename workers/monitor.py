@@ -21,6 +21,8 @@ class Monitor(Worker):
         "period": 1.0,     # seconds between updates
         "mode": "auto",    # auto (table on a terminal unless --headless), table, or lines
     }
+    RANGES = {"period": (0.05, 3600.0)}
+    CHOICES = {"mode": ("auto", "table", "lines")}
 
     def setup(self) -> None:
         self.view = PipelineView(self.layout.run.fps)

@@ -39,6 +39,7 @@ class Reconstruction(Worker):
     PRODUCES = ("voxels",)
     ACCEPTS = (Mask,)
     INBOX_DEPTH = 4   # per camera: a few frames to assemble complete sets
+    ACK_ON_HANDLE = False   # a frame is finished when reconstructed or given up
     DEFAULTS = {
         "voxel_size": 0.04,          # metres (0.02 .. 0.15)
         "tolerance": 1,              # k: cameras that may miss an occupied voxel (§2.2.4)
@@ -213,6 +214,12 @@ class Reconstruction(Worker):
     # -- one frame ----------------------------------------------------------------------
     def _reconstruct(self, frame: int, masks: dict, partial: set) -> None:
         self.newest_done = max(self.newest_done, frame)
+        try:
+            self._build(frame, masks, partial)
+        finally:
+            self.finished(frame)
+
+    def _build(self, frame: int, masks: dict, partial: set) -> None:
         if len(masks) < self.params["min_views"]:
             self.too_few_views += 1
             if self.too_few_views in (1, 10, 100) or self.too_few_views % 1000 == 0:

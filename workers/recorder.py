@@ -93,6 +93,13 @@ class Recorder(Worker):
         "voxels": False,   # also keep every frame's voxels in voxels.bin
     }
 
+    @classmethod
+    def acknowledges(cls, spec, layout) -> bool:
+        """Offline, the source waits for the recorder too (results are never dropped), when
+        the layout produces something it writes."""
+        produced = {s for w in layout.workers for s in worker_class(w.kind).PRODUCES}
+        return bool(produced & {"tracks", "poses"} or (spec.params.get("voxels") and "voxels" in produced))
+
     def subscriptions(self) -> list[str]:
         keys = super().subscriptions()
         return keys + [self.keys.voxels()] if self.params["voxels"] else keys

@@ -51,6 +51,9 @@ class Segmentation(Worker):
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
     }
+    RANGES = {"scale": (0, 16), "history": (1, 100000), "var_threshold": (0.1, 10000.0),
+              "shadow_threshold": (0.0, 1.0), "learning_rate": (-1.0, 1.0), "bootstrap": (0, 100000),
+              "open_px": (0, 99), "close_px": (0, 99), "colour_scale": (-1, 16), "median_frames": (1, 1000)}
 
     def setup(self) -> None:
         from calibration import load_calibration

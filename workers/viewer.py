@@ -10,7 +10,10 @@ inboxes keep only the newest message of each kind, each kind is drawn at most
 The page is served by meshcat's own server class running inside this process
 (:mod:`app.viewer.server`), on ``bind`` (``127.0.0.1`` unless the layout says, e.g.,
 ``0.0.0.0``) and ``port`` (0: the first free port from 7000). The URL to open is
-printed on stderr when the viewer starts. ``--headless`` runs do not start it.
+printed on stderr when the viewer starts, and the monitor's table keeps it on screen.
+``--headless`` runs do not start it. With ``linger`` (``smartroom run --linger``) the
+page, once the stream has ended and this viewer is gone, reloads into the replay of the
+run that ``smartroom run`` then serves at the same address until Ctrl-C.
 """
 from __future__ import annotations
 
@@ -31,6 +34,17 @@ OK_COLOUR = (0.55, 1.0, 0.55)
 BEHIND_COLOUR = (1.0, 0.6, 0.25)
 
 
+def reload_when_back() -> dict:
+    """A page control whose creation makes the page wait, once this server has gone, for
+    the page to be served again (``smartroom run --linger`` serves the run's replay at the
+    same address) and reload it; the button reloads at once."""
+    from app.viewer import three
+    js = ("(() => { const retry = () => fetch(location.href, {cache: 'no-store'})"
+          ".then(() => location.reload()).catch(() => setTimeout(retry, 500)); "
+          "viewer.connection.onclose = () => setTimeout(retry, 500); return () => location.reload(); })()")
+    return three.set_control("replay the run", js)
+
+
 class Viewer(Worker):
     KIND = "viewer"
     CONSUMES = ("voxels", "tracks", "poses", "stats")
@@ -44,7 +58,10 @@ class Viewer(Worker):
         "trail": 25,                  # past positions drawn behind each track
         "ellipsoid": [0.3, 0.3, 0.9],  # semi-axes (m) of a person around the track's centroid
         "frustum_depth": 0.4,         # length (m) of the drawn camera frustums
+        "linger": False,              # smartroom run --linger: the page reloads into the run's replay at the end
     }
+    RANGES = {"port": (0, 65535), "max_rate": (0.1, 120.0), "max_points": (0, 10_000_000), "trail": (0, 10000),
+              "frustum_depth": (0.0, 10.0)}
 
     def setup(self) -> None:
         p = self.params
@@ -103,6 +120,8 @@ class Viewer(Worker):
     def flush(self) -> None:
         self._draw(force=True)
         self._status(ended=True)
+        if self.params["linger"]:
+            self._send([reload_when_back()])
 
     def close(self) -> None:
         server = getattr(self, "server", None)

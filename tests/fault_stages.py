@@ -1,0 +1,41 @@
+"""Stages that misbehave on purpose, for the fault tests (loaded as plugin kinds)."""
+import os
+import time
+
+from app.messages import Ack
+from workers.base import Worker
+from workers.segmentation import Segmentation
+
+
+class CrashyStage(Worker):
+    """Consumes voxels; its incarnation ``n`` dies (exit 1) on frame ``crash_at[n]``, or
+    at once when ``crash_on_start`` (a restart storm)."""
+
+    KIND = "crashy"
+    ORDER = 3
+    CONSUMES = ("voxels",)
+    PRODUCES = ("crashy",)
+    DEFAULTS = {"crash_at": [], "crash_on_start": False}
+
+    def setup(self):
+        if self.params["crash_on_start"]:
+            os._exit(1)
+
+    def handle(self, key, msg):
+        plan = self.params["crash_at"]
+        if self.incarnation < len(plan) and msg.frame >= plan[self.incarnation]:
+            os._exit(1)
+        self.publish(self.keys.stage("crashy"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))
+
+
+class SlowStartSegmentation(Segmentation):
+    """A segmentation worker that is slow on its first frame (a cold start on big videos)."""
+
+    DEFAULTS = {**Segmentation.DEFAULTS, "first_delay_s": 2.0}
+    RANGES = {}
+
+    def handle(self, key, msg):
+        if not getattr(self, "_slept", False):
+            self._slept = True
+            time.sleep(self.params["first_delay_s"])
+        super().handle(key, msg)

@@ -1,0 +1,377 @@
+"""A room that runs for days (issue 9): crashes, kills, a fuzzed bus, a dead launcher,
+bad input, a full disk and a damaged video, with real worker processes over a real
+loopback zenoh session. Each test checks what is left: the result files, the counts
+in ``stats.json`` and the exit code."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from app.results import iter_voxels
+from tests.conftest import ROOT, smartroom, start_smartroom
+from tests.synthetic import write_tiny_recording
+
+pytestmark = pytest.mark.integration
+
+STAGES = ("grabber", "segmentation", "reconstruction")
+
+
+def write_layout(path, extra_workers=(), restarts=None, recorder_voxels=True, **params):
+    """The spine (grabber, segmentation, reconstruction at 8 cm, recorder keeping voxels)."""
+    workers = [{"name": "grabber", "kind": "grabber"},
+               {"name": "segmentation", "kind": "segmentation", "params": params.get("segmentation", {})},
+               {"name": "reconstruction", "kind": "reconstruction",
+                "params": {"voxel_size": 0.08, **params.get("reconstruction", {})}},
+               {"name": "recorder", "kind": "recorder", "params": {"voxels": recorder_voxels}},
+               *extra_workers]
+    doc = {"room": "faults", "bus": {"listen": ["tcp/127.0.0.1:0"]}, "workers": workers}
+    if restarts:
+        doc["restarts"] = restarts
+    Path(path).write_text(yaml.safe_dump(doc))
+    return path
+
+
+def stats_of(out):
+    try:
+        return json.loads((Path(out) / "stats.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def wait_for(cond, timeout=30.0, period=0.05):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(period)
+    return None
+
+
+def worker_pid(out, name, not_pid=None):
+    s = stats_of(out)
+    w = (s or {}).get("workers", {}).get(name)
+    if w and w.get("pid") and w.get("pid") != not_pid and w.get("frames_in", 0) > 0:
+        return w["pid"]
+    return None
+
+
+def assert_counts_add_up(s, expected):
+    for name in STAGES:
+        st = s["stages"][name]
+        assert st["frames_in"] + st["frames_missing"] == expected, (name, st)
+        assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], (name, st)
+
+
+def voxel_frames(path):
+    return [(m.frame, tuple(m.cameras)) for m in iter_voxels(path)]
+
+
+@pytest.fixture(scope="module")
+def recording_20s(tmp_path_factory):
+    """2 cameras, 160x120, 500 frames (20 s) at 25 fps."""
+    return write_tiny_recording(tmp_path_factory.mktemp("rec") / "r20", frames=500)
+
+
+def test_every_worker_kind_killed_or_terminated_mid_run(recording_20s, tmp_path):
+    """kill -9 and SIGTERM of each kind: each is back within seconds, the run completes,
+    voxels.bin holds every frame the recorder received before and after, counts add up."""
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    proc = start_smartroom("run", "--recording", recording_20s, "--headless", "--layout", layout, "--out", out)
+    back_after = {}
+    plan = [("grabber", signal.SIGKILL), ("segmentation", signal.SIGTERM), ("reconstruction", signal.SIGKILL),
+            ("recorder", signal.SIGTERM), ("segmentation", signal.SIGKILL), ("recorder", signal.SIGKILL)]
+    try:
+        for name, sig in plan:
+            pid = wait_for(lambda: worker_pid(out, name), timeout=30)
+            assert pid, f"{name} never reported"
+            time.sleep(0.6)
+            os.kill(pid, sig)
+            t0 = time.monotonic()
+            assert wait_for(lambda: worker_pid(out, name, not_pid=pid), timeout=15), f"{name} not restarted"
+            back_after[(name, sig.name)] = round(time.monotonic() - t0, 2)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    print("back after (s):", back_after)
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    assert s["stages"]["grabber"]["frames_out"] == 500          # the grabber carried on where it was
+    assert_counts_add_up(s, 500)
+    assert s["stages"]["segmentation"]["restarts"] == 2 and s["stages"]["recorder"]["restarts"] == 2
+    assert s["stages"]["grabber"]["restarts"] == 1 and s["stages"]["reconstruction"]["restarts"] == 1
+    frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
+    assert frames == sorted(set(frames))                         # in order, no duplicate
+    assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 400
+    assert frames[0] == 0 and frames[-1] == 499                  # before the first kill and after the last
+    assert not list(out.glob("*.partial"))
+
+
+def test_a_stage_crashing_ten_times_keeps_being_restarted(long_recording, tmp_path):
+    out = tmp_path / "out"
+    crash_at = list(range(8, 200, 20))   # ten crashes, one second apart
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"window_s": 2, "storm": 4},
+                          extra_workers=[{"name": "crashy", "kind": "tests.fault_stages:CrashyStage",
+                                          "params": {"crash_at": crash_at}}])
+    r = smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--out", out, timeout=180)
+    assert r.returncode == 0, r.stderr
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["crashy"]["restarts"] == 10
+    assert r.stderr.count("worker crashy died (crashed)") == 10
+    assert_counts_add_up(s, 250)
+    assert s["stages"]["reconstruction"]["frames_out"] == 250    # the others never noticed
+
+
+def test_a_restart_storm_is_stopped_and_reported(long_recording, tmp_path):
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"window_s": 60, "storm": 3},
+                          extra_workers=[{"name": "crashy", "kind": "tests.fault_stages:CrashyStage",
+                                          "params": {"crash_on_start": True}}])
+    r = smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--out", out, timeout=120)
+    assert r.returncode == 1, r.stderr
+    assert "restart storm stopped" in r.stderr and "Traceback" not in r.stderr
+    s = stats_of(out)
+    assert s["complete"] is False and any("storm" in x for x in s["reasons"])
+
+
+def _fuzz_payloads(rng, good: bytes):
+    """Random, truncated, wrong-version, overflowing and out-of-window variants."""
+    from app.messages import EndOfStream, Frame, Mask, Voxels, encode
+    out = [rng.bytes(int(rng.integers(0, 200))), good[: int(rng.integers(0, len(good)))],
+           good[:3] + bytes([9]) + good[4:]]
+    huge = encode(Voxels(frame=1, voxel_size=0.08, dims=[60000, 60000, 60000], indices=np.zeros((0, 3), np.int16),
+                         colours=np.zeros(0, np.uint8), surface=np.zeros(0, bool)))
+    out.append(huge)
+    m = np.zeros((15, 20), bool)
+    out.append(encode(Mask.pack(m, frame=10 ** 9, camera="cam0", cameras=["cam0"])))      # far future
+    out.append(encode(Mask.pack(m, frame=10 ** 6, camera="cam0", cameras=["cam0"], epoch=2 ** 40)))  # forged epoch
+    out.append(encode(Frame(frame=5, camera="nobody", cameras=["nobody"], image=np.zeros((4, 4, 3), np.uint8))))
+    out.append(encode(EndOfStream(frame=0, worker="grabber", frames=1, fps=25.0)))        # forged end of stream
+    return out
+
+
+def test_fuzzing_every_key_crashes_nothing_and_ends_nothing(long_recording, tmp_path):
+    import zenoh
+
+    from app.bus import BusConfig, Keys, open_session
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--out", out)
+    sent = 0
+    try:
+        assert wait_for(lambda: worker_pid(out, "reconstruction"), timeout=60)
+        hub = yaml.safe_load((out / "layout.yaml").read_text())["bus"]["listen"]
+        session = open_session(BusConfig(listen=["tcp/127.0.0.1:0"], connect=hub))
+        keys = Keys("faults")
+        targets = [keys.frame("cam0"), keys.frame("cam1"), keys.frame("junk1"), keys.mask("cam0"), keys.mask("cam1"),
+                   keys.voxels(), keys.tracks(), keys.eos("grabber"), keys.eos("segmentation"),
+                   keys.stats("segmentation"), keys.ack("segmentation")]
+        rng = np.random.default_rng(0)
+        good = (out / "layout.yaml").read_bytes()
+        pubs = {k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets}
+        t_end = time.monotonic() + 4.0
+        while time.monotonic() < t_end:
+            for k in targets:
+                for payload in _fuzz_payloads(rng, good):
+                    pubs[k].put(payload)
+                    sent += 1
+            time.sleep(0.02)
+        session.close()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert sent > 2000
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    s = stats_of(out)
+    assert s["complete"] is True
+    for name in STAGES:
+        assert s["stages"][name]["restarts"] == 0, name
+    assert s["stages"]["reconstruction"]["frames_out"] == 250       # nothing ended early or was lost
+    seg, rec = s["workers"]["segmentation"], s["workers"]["reconstruction"]
+    per_key = len(_fuzz_payloads(rng, good))
+    # every message that reached a stage was counted, each under its key and reason
+    assert sum(n for k, n in seg["rejected"].items() if k.startswith("frame/cam0")) >= sent // len(targets) * (per_key - 1) * 0.9
+    assert sum(n for k, n in rec["rejected"].items() if k.startswith("mask/cam1")) >= sent // len(targets) * (per_key - 1) * 0.9
+    assert any("end of stream from a running worker" in k or "eos/grabber" in k for k in seg["rejected"])
+
+
+def test_killing_the_launcher_leaves_no_worker_alive(long_recording, tmp_path):
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--out", out)
+    try:
+        pids = wait_for(lambda: [worker_pid(out, n) for n in (*STAGES, "recorder")]
+                        if all(worker_pid(out, n) for n in STAGES) else None, timeout=60)
+        assert pids
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(5)
+        time.sleep(2.0)
+        alive = []
+        for pid in filter(None, pids):
+            try:
+                os.kill(pid, 0)
+                alive.append(pid)
+            except ProcessLookupError:
+                pass
+        assert not alive, "workers outlived their launcher by 2 s"
+    finally:
+        for pid in filter(None, pids or []):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def test_a_damaged_video_is_an_error_naming_file_and_frame(tmp_path):
+    rec = write_tiny_recording(tmp_path / "rec", frames=125)
+    video = rec / "videos" / "cam1.avi"
+    with open(video, "r+b") as fh:
+        fh.truncate(int(os.path.getsize(video) * 0.4))
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    r = smartroom("run", "--recording", rec, "--headless", "--no-pace", "--layout", layout, "--out", out, timeout=120)
+    assert r.returncode == 2, r.stderr
+    line = [x for x in r.stderr.splitlines() if x.startswith("smartroom: error:")]
+    assert len(line) == 1 and "videos/cam1.avi: frame" in line[0] and "cannot be decoded" in line[0]
+    assert "Traceback" not in r.stderr
+    s = stats_of(out)
+    assert s["complete"] is False and "cannot be decoded" in s["reasons"][0]
+    frames = [f for f, _ in iter_voxels(next(out.glob("voxels.bin*")))]
+    assert frames == list(range(len(frames))) and len(frames) >= 40   # valid up to where it stopped
+
+    # on request, the damaged stretch is skipped: those frames have one camera, fewer
+    # than min_views, so they are dropped and counted, never published
+    out2 = tmp_path / "out2"
+    r = smartroom("run", "--recording", rec, "--headless", "--no-pace", "--layout", layout, "--out", out2,
+                  "--set", "grabber.skip_bad_frames=true", timeout=120)
+    assert r.returncode == 0, r.stderr
+    s = stats_of(out2)
+    lost = s["workers"]["grabber"]["views_lost"]["cam1"]
+    assert lost >= 60
+    rec_w = s["workers"]["reconstruction"]
+    assert rec_w["frames_too_few_views"] == lost
+    published = voxel_frames(out2 / "voxels.bin")
+    assert len(published) == 125 - lost and all(cams == ("cam0", "cam1") for _, cams in published)
+
+
+def test_a_full_disk_ends_the_run_with_valid_files_and_honest_stats(long_recording, tmp_path):
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        out = mnt / "out"
+        layout = write_layout(tmp_path / "layout.yaml", reconstruction={"voxel_size": 0.04})
+        r = smartroom("run", "--recording", long_recording, "--headless", "--no-pace", "--layout", layout,
+                      "--out", out, timeout=120)
+        assert r.returncode == 2, r.stderr
+        assert "disk full" in r.stderr and "Traceback" not in r.stderr
+        s = stats_of(out)
+        assert s["complete"] is False and any("disk full" in x for x in s["reasons"])
+        frames = [m.frame for m in iter_voxels(out / "voxels.bin.partial")]   # every record complete
+        assert frames == list(range(len(frames))) and frames
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def _hog(n=2):
+    code = "import time\nt=time.time()\nwhile time.time()-t<120: pass"
+    return [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
+
+
+def test_results_do_not_depend_on_machine_load(tmp_path):
+    """Two runs of one recording, one beside a CPU hog, give identical voxels (issue 8)."""
+    rec = write_tiny_recording(tmp_path / "rec", frames=120, n_cameras=3)
+    layout = write_layout(tmp_path / "layout.yaml")
+    runs = []
+    for name, loaded in (("idle", False), ("loaded", True)):
+        hogs = _hog() if loaded else []
+        try:
+            r = smartroom("run", "--recording", rec, "--headless", "--no-pace", "--layout", layout,
+                          "--out", tmp_path / name, timeout=180)
+        finally:
+            for h in hogs:
+                h.kill()
+        assert r.returncode == 0, r.stderr
+        runs.append([(m.frame, tuple(m.cameras), m.indices.tobytes(), m.colours.tobytes())
+                     for m in iter_voxels(tmp_path / name / "voxels.bin")])
+    assert len(runs[0]) == 120 and all(len(f[1]) == 3 for f in runs[0])
+    assert runs[0] == runs[1]
+
+
+def test_frame_zero_is_complete_when_a_camera_starts_slowly(long_recording, tmp_path):
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    doc = yaml.safe_load(Path(layout).read_text())
+    doc["workers"][1] = {"name": "seg0", "kind": "segmentation", "params": {"cameras": ["cam0"]}}
+    doc["workers"].insert(2, {"name": "seg1", "kind": "tests.fault_stages:SlowStartSegmentation",
+                              "params": {"cameras": ["cam1"], "first_delay_s": 2.0}})
+    Path(layout).write_text(yaml.safe_dump(doc))
+    r = smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--frames", 40,
+                  "--out", out, timeout=120)
+    assert r.returncode == 0, r.stderr
+    frames = voxel_frames(out / "voxels.bin")
+    assert frames[0] == (0, ("cam0", "cam1"))
+    assert len(frames) == 40 and all(cams == ("cam0", "cam1") for _, cams in frames)
+
+
+BAD_LAYOUTS = {
+    "run key": ({"run": {"recordingg": "x"}}, "run: unknown key 'recordingg'"),
+    "kind not a worker": ({"workers+": [{"name": "w", "kind": "app.errors:InputError"}]}, "is not a worker"),
+    "no source": ({"workers": [{"name": "r", "kind": "recorder"}]}, "no source"),
+    "window": ({"grabber": {"window": 0}}, "parameter window = 0 is outside"),
+    "history": ({"segmentation": {"history": -3}}, "parameter history = -3 is outside"),
+    "scale": ({"segmentation": {"scale": 99}}, "parameter scale = 99 is outside"),
+    "close_px": ({"segmentation": {"close_px": 500}}, "parameter close_px = 500 is outside"),
+    "wait_ms": ({"reconstruction": {"wait_ms": 0}}, "parameter wait_ms = 0.0 is outside"),
+    "tolerance": ({"reconstruction": {"tolerance": -1}}, "parameter tolerance = -1 is outside"),
+    "restarts": ({"restarts": {"storm": 0}}, "restarts: storm = 0 is outside"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_LAYOUTS))
+def test_bad_layouts_are_one_line_errors(case, long_recording, tmp_path):
+    change, message = BAD_LAYOUTS[case]
+    doc = yaml.safe_load(Path(write_layout(tmp_path / "base.yaml")).read_text())
+    for key, value in change.items():
+        if key in ("run", "restarts", "workers"):
+            doc[key] = value
+        elif key == "workers+":
+            doc["workers"] += value
+        else:
+            next(w for w in doc["workers"] if w["name"] == key).setdefault("params", {}).update(value)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    r = smartroom("run", "--recording", long_recording, "--headless", "--layout", path, "--out", tmp_path / "o")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], r.stderr
+
+
+def test_bad_output_folders_are_one_line_errors(long_recording, tmp_path):
+    ro = tmp_path / "readonly"
+    ro.mkdir()
+    ro.chmod(0o500)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    done = tmp_path / "done"
+    done.mkdir()
+    (done / "stats.json").write_text("{}")
+    for out, message in ((blocker / "out", "cannot write there"), (done, "already holds the results of a run")):
+        r = smartroom("run", "--recording", long_recording, "--headless", "--out", out)
+        assert r.returncode == 2
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], r.stderr
+    assert (done / "stats.json").read_text() == "{}"
