@@ -112,6 +112,13 @@ class PipelineView:
             counts = [msg.figures["tracks"] for _, msg in self._stats.values() if "tracks" in msg.figures]
         return int(max(counts)) if counts else None
 
+    def urls(self) -> list[str]:
+        """Pages the workers serve (the viewer's ``url`` figure), so the table keeps them on screen."""
+        with self._lock:
+            items = sorted(self._stats.items())
+        return [f"{name}: {msg.figures['url']}" for name, (_, msg) in items
+                if isinstance(msg.figures.get("url"), str) and msg.figures["url"]]
+
     def verdict(self, rtf: float | None) -> str:
         if rtf is None:
             return "waiting"
@@ -142,6 +149,7 @@ class PipelineView:
         head = f"smartroom monitor | {fps} | RTF {rtf:.2f} (target 1.00): {self.verdict(rtf).upper()}" \
             if rtf is not None else f"smartroom monitor | {fps} | waiting for stages"
         lines = [head]
+        lines += [f"view  {u}" for u in self.urls()]
         if neck is not None and rtf is not None:
             lines.append(f"bottleneck: {neck.name} (busy {100 * neck.busy:.0f}%, {neck.dropped} frames dropped)")
         tracked = self.tracks()

@@ -95,20 +95,27 @@ def test_view_command_one_line_errors(tmp_path):
     assert r.returncode == 2 and "nothing to replay" in r.stderr
 
 
+def _drain(stream, lines):
+    for line in stream:
+        lines.append(line)
+
+
 def _view(results, *args):
+    """``smartroom view`` in the background, its stderr drained (a full pipe would stall it)."""
+    import threading
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "view", str(results), *map(str, args)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    lines = []
+    threading.Thread(target=_drain, args=(proc.stderr, lines), daemon=True).start()
     deadline = time.monotonic() + 60
-    line = ""
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        m = re.search(r"view: open (http://127\.0\.0\.1:\d+/static/)", line)
-        if m:
-            return proc, m.group(1)
-        if not line and proc.poll() is not None:
-            break
+    while time.monotonic() < deadline and proc.poll() is None:
+        for line in list(lines):
+            m = re.search(r"view: open (http://127\.0\.0\.1:\d+/static/)", line)
+            if m:
+                return proc, m.group(1)
+        time.sleep(0.05)
     proc.kill()
-    raise AssertionError(f"no URL from smartroom view: {line}{proc.stderr.read()}")
+    raise AssertionError(f"no URL from smartroom view: {''.join(lines)[-2000:]}")
 
 
 def _stop(proc):
@@ -122,10 +129,22 @@ def _stop(proc):
 
 
 def _dump_dom(chromium, url, profile, budget_ms=2500):
+    """The page's DOM after ``budget_ms`` of virtual time (Chromium's helpers killed after)."""
+    import os
+    import signal
     cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
            "--enable-unsafe-swiftshader", "--no-first-run", f"--user-data-dir={profile}",
            f"--virtual-time-budget={budget_ms}", "--dump-dom", url]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=90, start_new_session=True).stdout
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, _ = proc.communicate(timeout=90)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    return out
 
 
 @pytest.mark.browser
@@ -140,9 +159,9 @@ def test_replay_in_headless_chromium_shows_the_chosen_frame(run_results, tmp_pat
     for frame in (5, 60):
         proc, url = _view(run_results, "--frame", frame)
         try:
-            shots[frame] = _screenshot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / "profile")
+            shots[frame] = _screenshot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / f"profile{frame}")
             if frame == 5:
-                dom = _dump_dom(chromium, url, tmp_path / "profile")
+                dom = _dump_dom(chromium, url, tmp_path / "profile_dom")
         finally:
             assert _stop(proc) == 0
     # the page has the replay's controls: meshcat's play / pause / time slider and ours
@@ -165,3 +184,60 @@ def test_replay_in_headless_chromium_shows_the_chosen_frame(run_results, tmp_pat
         centres = data.voxels[frame][0]
         body = _box(view.project(centres, 800, 600), 4, img.shape)
         assert _near(img, (200, 200, 200), 25)[body].sum() > 100
+
+
+def test_monitor_table_keeps_the_viewer_url_on_screen():
+    from app.messages import Stats
+    from app.monitor import PipelineView
+    view = PipelineView(25.0)
+    view.update(Stats(frame=3, worker="viewer", stage="viewer", figures={"url": "http://127.0.0.1:7001/static/"}))
+    view.update(Stats(frame=3, worker="segmentation", stage="segmentation", figures={"order": 1, "fps_out": 25.0}))
+    assert "viewer: http://127.0.0.1:7001/static/" in view.table()
+
+
+@pytest.mark.integration
+def test_run_linger_keeps_the_viewer_up_with_the_replay(tiny_recording, tmp_path):
+    """``smartroom run --linger``: after the stream, the replay of the run (voxels.bin kept
+    by the recorder) at the run's viewer address, until Ctrl-C."""
+    import urllib.request
+    layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
+              "workers": [{"name": "grabber", "kind": "grabber"}, {"name": "segmentation", "kind": "segmentation"},
+                          {"name": "reconstruction", "kind": "reconstruction", "params": {"voxel_size": 0.04}},
+                          {"name": "recorder", "kind": "recorder", "params": {"voxels": True}},
+                          {"name": "viewer", "kind": "viewer"}]}
+    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--recording", str(tiny_recording), "--layout",
+                             str(tmp_path / "layout.yaml"), "--out", str(out), "--no-pace", "--linger"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    import threading
+    lines, live, replay = [], None, None
+    threading.Thread(target=_drain, args=(proc.stderr, lines), daemon=True).start()
+    threading.Thread(target=lambda: proc.stdout.read(), daemon=True).start()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and replay is None and proc.poll() is None:
+            for line in list(lines):
+                m = re.search(r"^(viewer|view): open (http://\S+)", line)
+                if m and m.group(1) == "viewer":
+                    live = m.group(2)
+                elif m:
+                    replay, last = m.group(2), line
+            time.sleep(0.05)
+        assert live and replay, "".join(lines)[-3000:]
+        assert replay == live                                # the same address, now serving the replay
+        assert "60 frames 0..59" in last and "60 with voxels" in last
+        assert (out / "voxels.bin").is_file() and not list(out.glob("*.partial"))   # the run itself is complete
+        time.sleep(1.0)
+        assert proc.poll() is None                           # lingering
+        with urllib.request.urlopen(replay, timeout=10) as page:
+            assert page.status == 200
+    finally:
+        proc.send_signal(2)
+        try:
+            rc = proc.wait(30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert rc == 0

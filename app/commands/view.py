@@ -1,5 +1,6 @@
 """``smartroom view RESULTS``: replay a finished run in the viewer (meshcat in a browser)
-from its files alone: no bus, no recomputation (see :mod:`app.viewer.replay`)."""
+from its files alone: no bus, no recomputation (see :mod:`app.viewer.replay`). Also what
+``smartroom run --linger`` serves once the stream has ended."""
 from __future__ import annotations
 
 import signal
@@ -19,34 +20,73 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, help="stop serving after this long (default: until Ctrl-C)")
 
 
-def main(args) -> int:
+def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = None, paused: bool = False,
+          voxels: bool = True, max_points: int = 8000, trail: int = 25, seconds: float | None = None,
+          allow_empty: bool = False, last: bool = False) -> int:
+    """Serve the replay of ``results`` until Ctrl-C / SIGTERM (or ``seconds``). ``last``:
+    open paused on the last frame; ``allow_empty``: a run with nothing to replay shows the room."""
     from app.errors import InputError
     from app.viewer.replay import load_run, replay_commands
-    from app.viewer.server import MeshcatServer, ServerError
     from app.viewer.scene import VOXELS
+    from app.viewer.server import MeshcatServer, ServerError
 
-    if args.max_points <= 0:
-        raise InputError(f"--max-points must be positive, got {args.max_points}")
-    data = load_run(args.results, voxels=args.voxels, max_points=args.max_points)
+    if max_points <= 0:
+        raise InputError(f"--max-points must be positive, got {max_points}")
+    data = load_run(results, voxels=voxels, max_points=max_points, allow_empty=allow_empty)
     frames = data.frames
-    if args.frame is not None and not frames[0] <= args.frame <= frames[-1]:
-        raise InputError(f"--frame {args.frame} is outside the run's frames {frames[0]}..{frames[-1]}")
-    _, commands = replay_commands(data, trail=args.trail, start=args.frame, paused=args.paused)
+    if frames and last:
+        frame = frames[-1]
+    if frame is not None and frames and not frames[0] <= frame <= frames[-1]:
+        raise InputError(f"--frame {frame} is outside the run's frames {frames[0]}..{frames[-1]}")
+    _, commands = replay_commands(data, trail=trail, start=frame, paused=paused)
     try:
-        server = MeshcatServer(args.bind, args.port, latest_only=[VOXELS]).start()
-    except ServerError as exc:
-        raise InputError(str(exc)) from None
+        server = MeshcatServer(bind, port, latest_only=[VOXELS]).start()
+    except ServerError:
+        if not port:
+            raise
+        server = None
+    if server is None:   # the port is taken: any free one
+        try:
+            server = MeshcatServer(bind, 0, latest_only=[VOXELS]).start()
+        except ServerError as exc:
+            raise InputError(str(exc)) from None
     done = threading.Event()
     previous = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         for cmd in commands:
             server.send(cmd)
-        print(f"view: open {server.url}  ({len(frames)} frames {frames[0]}..{frames[-1]} at {data.fps:g} fps; "
-              f"{len(data.voxels)} with voxels, {len(data.poses)} with poses, {len(data.tracks)} with tracks; "
-              "Ctrl-C to stop)", file=sys.stderr, flush=True)
-        done.wait(args.seconds)
+        what = (f"{len(frames)} frames {frames[0]}..{frames[-1]} at {data.fps:g} fps; {len(data.voxels)} with voxels, "
+                f"{len(data.poses)} with poses, {len(data.tracks)} with tracks") if frames else "nothing recorded"
+        print(f"view: open {server.url}  ({what}; Ctrl-C to stop)", file=sys.stderr, flush=True)
+        done.wait(seconds)
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
         server.close()
     return 0
+
+
+def main(args) -> int:
+    return serve(args.results, args.bind, args.port, args.frame, args.paused, args.voxels, args.max_points,
+                 args.trail, args.seconds)
+
+
+def linger(layout, out) -> int:
+    """``smartroom run --linger``: after the stream, the run's replay at the viewer's address."""
+    import json
+    from pathlib import Path
+    from urllib.parse import urlparse
+
+    spec = next((w for w in layout.workers if w.kind == "viewer"), None)
+    if spec is None:
+        print("smartroom: --linger: the layout has no viewer", file=sys.stderr)
+        return 0
+    port = int(spec.params.get("port") or 0)
+    try:
+        workers = json.loads((Path(out) / "stats.json").read_text()).get("workers") or {}
+        url = (workers.get(spec.name) or {}).get("url")
+        port = urlparse(url).port or port if url else port
+    except (OSError, ValueError, AttributeError):
+        pass
+    print("smartroom: the stream has ended; the viewer stays up with the replay of the run", file=sys.stderr)
+    return serve(out, spec.params.get("bind", "127.0.0.1"), port, allow_empty=True, last=True)

@@ -64,7 +64,7 @@ def _calibration(folder: Path, run: dict):
     return None
 
 
-def load_run(results, voxels: bool = True, max_points: int = 8000) -> RunData:
+def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: bool = False) -> RunData:
     """Read a results folder (``max_points``: voxels kept per frame, surface first)."""
     folder = Path(results)
     if not folder.is_dir():
@@ -116,7 +116,7 @@ def load_run(results, voxels: bool = True, max_points: int = 8000) -> RunData:
                 centres = centres[keep]
                 cols = cols[keep] if cols is not None else None
             out.voxels[int(msg.frame)] = (centres, cols, float(msg.voxel_size), n)
-    if not out.frames:
+    if not out.frames and not allow_empty:
         raise InputError(f"{folder}: nothing to replay (no tracks.jsonl, poses.jsonl or voxels.bin)")
     return out
 
@@ -144,6 +144,8 @@ def replay_commands(data: RunData, trail: int = 25, ellipsoid=(0.3, 0.3, 0.9), s
     scene = Scene(lo, hi, cameras, frustum_depth=frustum_depth, ellipsoid=ellipsoid, trail=trail)
     cmds = scene.setup()
     frames = data.frames
+    if not frames:
+        return scene, cmds + scene.status(f"replay {data.folder.resolve().name} | nothing recorded")
     first, last = frames[0], frames[-1]
     fps = data.fps
     grey = np.asarray(INACTIVE_COLOUR, np.float32)
