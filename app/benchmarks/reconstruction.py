@@ -165,7 +165,13 @@ def fused_distances(recording, images: list[dict], scale: int, noise_frames: int
         bg = bg if bg is not None else estimate_background(rec.sample(cam, 25))
         models[cam] = YuvBackground(shrink(bg, scale))
         models[cam].fit_noise([f[cam] for f in images[:noise_frames]])
-    return [{cam: models[cam].distance(im) for cam, im in f.items()} for f in images]
+    out, ms = [], []
+    for f in images:
+        t0 = time.perf_counter()
+        out.append({cam: models[cam].distance(im) for cam, im in f.items()})
+        ms.append((time.perf_counter() - t0) * 1e3)
+    fused_distances.last_ms = ms
+    return out
 HULL_TARGET = {"volume_ratio": 2.5, "recall": 0.97, "largest_share": 0.9}
 
 
@@ -211,7 +217,8 @@ def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: i
     fragmentation (largest connected component near each person), scored with
     :func:`app.evaluation.reconstruction.score_frame` on the frames after ``warmup``.
     Every frame is carved in order (learnt occluders learn over the run); carve ms
-    p50 per frame is timed on the scored frames."""
+    p50 per frame is timed on the scored frames, and the segmentation of all cameras
+    (MOG2 masks, or the fused method's distance maps from the images at mask size)."""
     from app.evaluation.reconstruction import score_frame, summarise_scores
     from app.reconstruction import Reconstructor
     from app.recording import Recording
@@ -249,7 +256,8 @@ def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: i
                 s = summarise_scores(scores)
                 row = {"voxel_size": vs, "mask_scale": scale, "variant": name, "masks": source,
                        "carve_p50": float(np.percentile(ms, 50)) if ms else None,
-                       "segmentation_p50": float(np.percentile(seg_ms[warmup:], 50)) if source == "mog2" else None,
+                       "segmentation_p50": float(np.percentile(seg_ms[warmup:], 50)) if source == "mog2" else
+                       float(np.percentile(fused_distances.last_ms[warmup:], 50)) if source == "yuv" else None,
                        "occluder_share": {k: round(v, 4) for k, v in r.occluder_share().items()}, **s}
                 rows.append(row)
                 if verbose:
@@ -258,7 +266,7 @@ def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: i
 
 
 HULL_HEADER = (f"{'voxel':>5} {'mask':>5} {'variant':<10} {'masks':<5} {'recall':>6} {'min':>6} {'volume':>7} "
-               f"{'near':>6} {'share min':>9} {'in pieces':>9} {'carve ms':>8}  target")
+               f"{'near':>6} {'share min':>9} {'in pieces':>9} {'carve ms':>8} {'seg ms':>6}  target")
 
 
 def format_hull_row(r: dict) -> str:
@@ -266,7 +274,8 @@ def format_hull_row(r: dict) -> str:
           and r["largest_share_min"] >= HULL_TARGET["largest_share"])
     return (f"{r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} {r['variant']:<10} {r['masks']:<5} "
             f"{r['recall']:6.3f} {r['recall_min']:6.3f} {r['volume_ratio']:6.2f}x {r['volume_ratio_near']:5.2f}x "
-            f"{r['largest_share_min']:9.3f} {100 * r['frames_in_pieces']:8.0f}% {r['carve_p50'] or 0:8.1f}  "
+            f"{r['largest_share_min']:9.3f} {100 * r['frames_in_pieces']:8.0f}% {r['carve_p50'] or 0:8.1f} "
+            f"{r['segmentation_p50'] or 0:6.1f}  "
             f"{'met' if ok else 'not met'}")
 
 
@@ -277,3 +286,82 @@ def format_hull_table(rows: list[dict], recording, frames: int) -> str:
              f"share >= {HULL_TARGET['largest_share']}", HULL_HEADER]
     lines += [format_hull_row(r) for r in rows]
     return "\n".join(lines)
+
+
+#: issue 8's speed rows: (name, segmentation, Reconstructor options)
+SPEED_VARIANTS = (
+    ("mog2 k=1 (today)", "mog2", {"tolerance": 1}),
+    ("mog2 occluders", "mog2", {"tolerance": 0, "occlusion": "learnt"}),
+    ("mog2 occluders/8", "mog2", {"tolerance": 0, "occlusion": "learnt", "learn_every": 8}),
+    ("fused", "yuv", {"tolerance": 0, "method": "fused"}),
+)
+SPEED_BUDGET_MS = 30.0
+
+
+def speed_table(recording, frames: int = 60, voxel_size: float = 0.02, warmup: int = 10, min_top: float = 0.25,
+                variants=SPEED_VARIANTS, verbose: bool = True) -> list[dict]:
+    """ms per frame on one core of segmentation (every camera, from the full-size
+    frames: downscale + MOG2, or downscale + the fused method's distance maps) +
+    reconstruction + visibility colouring + surface, for the variants, at one voxel
+    size (issue 8: <= 30 ms at 2 cm with 5 cameras at 640x480). Frames are decoded
+    before timing."""
+    from app.recording import Recording
+    from app.reconstruction import Reconstructor
+    from app.segmentation import (CameraSegmenter, SegmentationParams, YuvBackground, estimate_background_robust,
+                                  matched_scale)
+
+    rec = Recording(recording)
+    calib = rec.calibration
+    scale = matched_scale(calib, voxel_size)
+    decoded = [images for _, images in rec.frames(stop=frames)]
+    backgrounds = {}
+    for cam in rec.cameras:
+        bg = rec.background(cam)
+        backgrounds[cam] = bg if bg is not None else estimate_background_robust(rec.sample(cam, 25))[0]
+    sizes = {c.name: (c.width // scale, c.height // scale) for c in calib.cameras}
+    rows = []
+    for name, seg_kind, options in variants:
+        if seg_kind == "mog2":
+            segs = {c: CameraSegmenter(SegmentationParams(scale=scale), backgrounds[c]) for c in rec.cameras}
+        else:
+            segs = {c: YuvBackground(shrink(backgrounds[c], scale)) for c in rec.cameras}
+            for c in rec.cameras:
+                segs[c].fit_noise([shrink(f[c], scale) for f in decoded[:warmup]])
+        r = Reconstructor(calib, voxel_size, mask_sizes=sizes, colour_sizes=sizes, colouring="visibility",
+                          min_top=min_top, **options)
+        seg_ms, rec_ms = [], []
+        for n, images in enumerate(decoded):
+            t0 = time.perf_counter()
+            masks, small = {}, {}
+            for cam, img in images.items():
+                if seg_kind == "mog2":
+                    masks[cam] = segs[cam].apply(img)
+                    small[cam] = segs[cam].small
+                else:
+                    small[cam] = shrink(img, scale)
+                    masks[cam] = segs[cam].distance(small[cam])
+            t1 = time.perf_counter()
+            r.reconstruct(masks, small)
+            t2 = time.perf_counter()
+            if n >= warmup:
+                seg_ms.append((t1 - t0) * 1e3)
+                rec_ms.append((t2 - t1) * 1e3)
+        total = np.add(seg_ms, rec_ms)
+        row = {"variant": name, "voxel_size": voxel_size, "mask_scale": scale, "cameras": len(rec.cameras),
+               "frames": len(total), "segmentation_p50": float(np.median(seg_ms)),
+               "reconstruction_p50": float(np.median(rec_ms)), "frame_p50": float(np.median(total)),
+               "frame_p95": float(np.percentile(total, 95))}
+        rows.append(row)
+        if verbose:
+            print(format_speed_row(row), flush=True)
+    return rows
+
+
+SPEED_HEADER = (f"{'variant':<20} {'voxel':>5} {'mask':>5} {'seg p50':>8} {'recon p50':>9} {'frame p50':>9} "
+                f"{'p95':>6}  budget {SPEED_BUDGET_MS:.0f} ms")
+
+
+def format_speed_row(r: dict) -> str:
+    return (f"{r['variant']:<20} {r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} "
+            f"{r['segmentation_p50']:8.1f} {r['reconstruction_p50']:9.1f} {r['frame_p50']:9.1f} {r['frame_p95']:6.1f}  "
+            f"{'ok' if r['frame_p50'] <= SPEED_BUDGET_MS else 'OVER'}")

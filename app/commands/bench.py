@@ -20,7 +20,7 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking")
 
 
 def add_arguments(p) -> None:
@@ -30,11 +30,18 @@ def add_arguments(p) -> None:
     p.add_argument("--modes", default="unpaced,paced", help="pipeline: unpaced, paced or both (default)")
     p.add_argument("--voxel-sizes", default="2,3,4,5", help="reconstruction: voxel sizes in cm (default 2,3,4,5)")
     p.add_argument("--tolerance", type=int, default=1, help="reconstruction: k, cameras that may miss a voxel")
+    p.add_argument("--filters", metavar="F:N,...",
+                   help="tracking: filters and counts, e.g. naive,ss_colour:400,pf_raw:100 (default: the Table 4.3 grid)")
+    p.add_argument("--tracking-scenes", default="meeting3,crowd6",
+                   help="tracking: simulated scenes when no --recording is given (default meeting3,crowd6)")
     p.add_argument("--min-top", type=float, default=0.25,
                    help="reconstruction: drop blobs lower than this (m); 0 = the thesis (keep all)")
     p.add_argument("--hull", action="store_true",
                    help="reconstruction: only the hull table of issue 8 (k=0, k=1, learnt occluders; MOG2 and "
                         "true silhouettes; volume, recall, fragmentation) on a simulated recording")
+    p.add_argument("--speed", action="store_true",
+                   help="reconstruction: only issue 8's speed rows (segmentation + reconstruction + colour per frame "
+                        "on one core for today's method, learnt occluders and the fused method) at the first voxel size")
     p.add_argument("--pose-methods", default="apf,shbm,ddm", help="pose: methods (apf, shbm, ddm, shbm+ddm)")
     p.add_argument("--densities", default="1,2,3", help="pose: model density factors (Eq. 6.26, default 1,2,3)")
     p.add_argument("--pose-scenes", default="gesture1,walk1", help="pose: simulated scenes (default gesture1,walk1)")
@@ -98,6 +105,10 @@ def _reconstruction(args, out: Path) -> dict:
     except ValueError:
         raise InputError(f"--voxel-sizes {args.voxel_sizes}: expected centimetres like 2,3,4,5") from None
     frames = args.frames or 60
+    if args.speed:
+        print(reconstruction.SPEED_HEADER)
+        rows = reconstruction.speed_table(run.recording, frames=frames + 10, voxel_size=sizes[0], min_top=args.min_top)
+        return {"recording": run.recording, "frames": frames, "speed": rows}
     if args.hull:
         rows = reconstruction.hull_table(run.recording, frames=frames + 10, voxel_sizes=sizes, min_top=args.min_top,
                                          verbose=False)
@@ -135,9 +146,34 @@ def _pose(args, out: Path) -> dict:
     return {"frames": frames, "voxel_size": voxel, "rows": rows}
 
 
+def _tracking(args, out: Path) -> dict:
+    from app.benchmarks import tracking
+    from app.errors import InputError
+
+    try:
+        sizes = (0.02, 0.04, 0.05, 0.10) if args.voxel_sizes == "2,3,4,5" else \
+            tuple(float(v) / 100 for v in args.voxel_sizes.split(","))
+    except ValueError:
+        raise InputError(f"--voxel-sizes {args.voxel_sizes}: expected centimetres like 2,5,10") from None
+    configs = tracking.parse_configs(args.filters) if args.filters else tracking.CONFIGS
+    if args.recording:
+        recordings = [resolve_source(args).recording]
+    else:
+        from app.simulation.cache import default_recording
+        from app.simulation.scenes import get_scene
+        recordings = [default_recording(s, seconds=get_scene(s).seconds)
+                      for s in args.tracking_scenes.split(",") if s]
+    print(f"smartroom bench tracking: {', '.join(str(r) for r in recordings)}; CCA + tracking on one core",
+          file=sys.stderr)
+    result = tracking.run(recordings, voxel_sizes=sizes, configs=configs, frames=args.frames,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+    print(tracking.format_table(result))
+    return result
+
+
 def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction,
-               "simulate": _simulate, "pose": _pose}[args.target](args, out)
+               "simulate": _simulate, "pose": _pose, "tracking": _tracking}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
