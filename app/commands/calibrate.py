@@ -177,7 +177,6 @@ def _check(args) -> int:
 
 def _check_recording(args) -> int:
     import cv2
-    import numpy as np
 
     from app.recording import Recording, fps_mismatches, size_mismatches
     from calibration.overlay import contact_sheet, draw_calibration, floor_coverage
@@ -267,7 +266,6 @@ def _extrinsics(args) -> int:
     import glob
 
     import cv2
-    import numpy as np
 
     from app.errors import InputError
     from calibration.boards import detect, floor_points, parse_board

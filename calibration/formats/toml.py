@@ -21,7 +21,6 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-import numpy as np
 
 from calibration.camera import Camera
 from calibration.formats.common import FormatError, Imported, fail, make_camera, metres_per_unit, numbers, rotation
