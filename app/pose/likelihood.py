@@ -84,6 +84,7 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
         for q in range(n_parts):
             for c in range(5):
                 out[k, q, c] = 0.0
+        shared = False
         for m in range(M):
             q = part[m]
             if not active[q]:
@@ -117,8 +118,11 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
                     flat_multi[f] = 0
                 elif flat_owner[f] != q:
                     flat_multi[f] = 1
+                    shared = True
             else:
                 cells[m] = -1
+        if not shared:
+            continue
         for m in range(M):
             f = cells[m]
             if f >= 0 and flat_multi[f] != 0:
