@@ -31,6 +31,7 @@ class Pose(Worker):
     PRODUCES = ("poses",)
     ACCEPTS = (Voxels, Tracks)
     INBOX_DEPTH = 4
+    ACK_ON_HANDLE = False   # a frame is finished once posed (its voxels and tracks are both in)
     DEFAULTS = {
         "method": "shbm",           # shbm, apf, ddm, shbm+ddm
         "density": 2.0,             # delta of Eq. 6.26 (1 = the data's voxel size)
@@ -43,6 +44,7 @@ class Pose(Worker):
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
         "seed": 0,
     }
+    CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0)}
 
@@ -106,6 +108,12 @@ class Pose(Worker):
 
     def _pose(self, vox: Voxels, tracks: Tracks) -> None:
         self.done = vox.frame
+        try:
+            self._estimate(vox, tracks)
+        finally:
+            self.finished(vox.frame)   # older frames still waiting are given up with it
+
+    def _estimate(self, vox: Voxels, tracks: Tracks) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         est = self._estimator(vox)
