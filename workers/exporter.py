@@ -33,6 +33,13 @@ class Exporter(Worker):
     }
     CHOICES = {"up": ("", "y", "z")}
 
+    @classmethod
+    def acknowledges(cls, spec, layout) -> bool:
+        """Offline, the source waits for the exporter too (like the recorder: exported
+        results are never dropped), when the layout has a stage that produces poses."""
+        from workers import worker_class
+        return any("poses" in worker_class(w.kind).PRODUCES for w in layout.workers)
+
     def setup(self) -> None:
         from app.export.live import LiveExport
         formats = self.params["formats"]
