@@ -128,6 +128,10 @@ def recording_problem(path: Path, calibration: Calibration, sources: dict) -> st
     if sizes:
         fix = (f"fix: smartroom calibrate fit --recording {path} --rescale (the video is the calibrated image "
                "scaled) or --crop (the video is a window of it)")
+        turned = [n for n, i in sources.items() if tuple(i.size) == (calibration.camera(n).height,
+                                                                     calibration.camera(n).width)]
+        if turned:
+            fix += f", or --turn 90 / --turn 270 ({', '.join(turned)} look turned a quarter)"
         return "; ".join(sizes) + f" ({len(sizes)} of {len(sources)} cameras); {fix}"
     rates = fps_mismatches(calibration, sources)
     if rates:

@@ -66,6 +66,13 @@ def test_every_mis_sized_camera_is_named_and_fit_fixes_it(three_cams, tmp_path):
     assert (rec / "calibration.yaml.orig").is_file()
     fitted = Recording(rec).calibration
     np.testing.assert_allclose(fitted.camera("cam0").K[0, 0], before.camera("cam0").K[0, 0] / 2)
+    # a portrait video under a landscape calibration: the error says so, fit --turn fixes it
+    rec3 = _copy(three_cams, tmp_path / "r3", cam0=(120, 160))
+    with pytest.raises(RecordingError, match=r"--turn 90 / --turn 270 \(cam0 look turned a quarter\)"):
+        Recording(rec3)
+    r = smartroom("calibrate", "fit", "--recording", rec3, "--turn", 90)
+    assert r.returncode == 0 and "cam0: turned 90 degrees clockwise, 120x160 -> 160x120" in r.stdout, r.stdout
+    Recording(rec3)
     # crop instead: the principal point moves, the focal length stays
     rec2 = _copy(three_cams, tmp_path / "r2", cam1=(160, 128))
     r = smartroom("calibrate", "fit", "--recording", rec2, "--crop", "--out", tmp_path / "cropped.yaml")

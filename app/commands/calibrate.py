@@ -95,7 +95,9 @@ def add_arguments(p) -> None:
     how = f.add_mutually_exclusive_group(required=True)
     how.add_argument("--rescale", action="store_true", help="the videos are the calibrated images scaled")
     how.add_argument("--crop", action="store_true", help="the videos are a window of the calibrated images")
-    how.add_argument("--turn", type=int, metavar="DEG", help="the videos are the images turned clockwise (90, 180, 270)")
+    how.add_argument("--turn", type=int, metavar="DEG",
+                     help="the videos are the images turned clockwise (90, 270: the cameras whose videos are portrait "
+                          "where the calibration is landscape, or the reverse)")
     f.add_argument("--anchor", choices=("topleft", "centre"), default="topleft", help="with --crop (default topleft)")
     f.add_argument("--out", help="calibration to write (default: the recording's, the old one kept as .orig)")
 
@@ -389,8 +391,9 @@ def _fit(args) -> int:
             if args.turn % 90:
                 raise InputError(f"--turn {args.turn}: must be 90, 180 or 270")
             t = turned(c, args.turn)
-            print(f"{c.name}: turned {args.turn} degrees clockwise, {c.width}x{c.height} -> {t.width}x{t.height}")
-            c = t
+            if (c.width, c.height) != (w, h) and (t.width, t.height) == (w, h):  # only where turning fits
+                print(f"{c.name}: turned {args.turn} degrees clockwise, {c.width}x{c.height} -> {t.width}x{t.height}")
+                c = t
         mode = "rescale" if args.rescale else "crop" if args.crop else None
         if mode and (c.width, c.height) != (w, h):
             c, said = fit_to_size(c, w, h, mode, args.anchor)
