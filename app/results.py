@@ -29,8 +29,8 @@ class VoxelWriter:
         self.path = Path(path)
         self.tmp = partial_path(self.path)
         self.frames: set[int] = set()
+        keep = 0
         if self.tmp.exists():
-            keep = 0
             with open(self.tmp, "rb") as fh:
                 while True:
                     head = fh.read(_LEN.size)
@@ -47,6 +47,7 @@ class VoxelWriter:
                     keep += _LEN.size + size
             os.truncate(self.tmp, keep)
         self.fh = open(self.tmp, "ab", buffering=0)
+        self.size = self.fh.tell()   # bytes of complete records
 
     @property
     def count(self) -> int:
@@ -57,7 +58,13 @@ class VoxelWriter:
         if msg.frame in self.frames:
             return False
         payload = encode(msg)
-        self.fh.write(_LEN.pack(len(payload)) + payload)   # one write: a crash cuts at most this record
+        record = _LEN.pack(len(payload)) + payload
+        try:
+            self.fh.write(record)   # one write: a crash cuts at most this record
+        except OSError:             # e.g. disk full: the file ends with its last complete record
+            os.truncate(self.tmp, self.size)
+            raise
+        self.size += len(record)
         self.frames.add(msg.frame)
         return True
 

@@ -179,6 +179,7 @@ def test_fuzzing_every_key_crashes_nothing_and_ends_nothing(long_recording, tmp_
         rng = np.random.default_rng(0)
         good = (out / "layout.yaml").read_bytes()
         pubs = {k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets}
+        time.sleep(1.0)   # gossip links this session to every worker directly
         t_end = time.monotonic() + 4.0
         while time.monotonic() < t_end:
             for k in targets:
@@ -200,11 +201,22 @@ def test_fuzzing_every_key_crashes_nothing_and_ends_nothing(long_recording, tmp_
         assert s["stages"][name]["restarts"] == 0, name
     assert s["stages"]["reconstruction"]["frames_out"] == 250       # nothing ended early or was lost
     seg, rec = s["workers"]["segmentation"], s["workers"]["reconstruction"]
-    per_key = len(_fuzz_payloads(rng, good))
-    # every message that reached a stage was counted, each under its key and reason
-    assert sum(n for k, n in seg["rejected"].items() if k.startswith("frame/cam0")) >= sent // len(targets) * (per_key - 1) * 0.9
-    assert sum(n for k, n in rec["rejected"].items() if k.startswith("mask/cam1")) >= sent // len(targets) * (per_key - 1) * 0.9
+    per_key = sent // len(targets)
+    # every message that reached a stage was counted, under its key and reason (a few may
+    # have been pushed out of a full inbox instead, which counts them as dropped items)
+    for w, key in ((seg, "frame/cam0"), (seg, "frame/junk1"), (rec, "mask/cam1")):
+        counted = sum(n for k, n in w["rejected"].items() if k.startswith(key))
+        assert counted + w["items_dropped"] >= per_key, (key, counted, w["items_dropped"], per_key)
     assert any("end of stream from a running worker" in k or "eos/grabber" in k for k in seg["rejected"])
+
+
+def _running(pid) -> bool:
+    """Alive and not a zombie (an orphan that exited waits for init to reap it)."""
+    try:
+        state = Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
 
 
 def test_killing_the_launcher_leaves_no_worker_alive(long_recording, tmp_path):
@@ -218,13 +230,7 @@ def test_killing_the_launcher_leaves_no_worker_alive(long_recording, tmp_path):
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(5)
         time.sleep(2.0)
-        alive = []
-        for pid in filter(None, pids):
-            try:
-                os.kill(pid, 0)
-                alive.append(pid)
-            except ProcessLookupError:
-                pass
+        alive = [pid for pid in filter(None, pids) if _running(pid)]
         assert not alive, "workers outlived their launcher by 2 s"
     finally:
         for pid in filter(None, pids or []):
@@ -248,7 +254,7 @@ def test_a_damaged_video_is_an_error_naming_file_and_frame(tmp_path):
     assert "Traceback" not in r.stderr
     s = stats_of(out)
     assert s["complete"] is False and "cannot be decoded" in s["reasons"][0]
-    frames = [f for f, _ in iter_voxels(next(out.glob("voxels.bin*")))]
+    frames = [m.frame for m in iter_voxels(next(out.glob("voxels.bin*")))]
     assert frames == list(range(len(frames))) and len(frames) >= 40   # valid up to where it stopped
 
     # on request, the damaged stretch is skipped: those frames have one camera, fewer

@@ -137,6 +137,9 @@ class Worker:
     #: a frame is finished once handle() returns; stages that hold frames back (assembling
     #: cameras) set False and call :meth:`finished` themselves
     ACK_ON_HANDLE: ClassVar[bool] = True
+    #: a sink whose output must not miss frames (the recorder, exporters): offline, the
+    #: source pauses while it is away (restarting) instead of sending frames past it
+    KEEPS_RESULTS: ClassVar[bool] = False
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
         self.spec = spec

@@ -133,6 +133,12 @@ class Grabber(Worker):
                 if w.name != self.name and worker_class(w.kind).acknowledges(w, self.layout)
                 and not (self.layout.run.headless and worker_class(w.kind).DISPLAY)]
 
+    def _keepers_of_results(self) -> list[str]:
+        """Sinks that keep results: waited for (alive) while they restart, not acknowledged."""
+        from workers import worker_class
+        return [w.name for w in self.layout.workers
+                if worker_class(w.kind).KEEPS_RESULTS and w.name not in self._ack_names]
+
     def _on_ack(self, sample) -> None:
         from app.bus import decode_sample
         from app.messages import Ack, MessageError
@@ -157,6 +163,7 @@ class Grabber(Worker):
         are lost, and counted)."""
         if not hasattr(self, "_ack_sub"):
             self._ack_names = self._filters()
+            self._keepers = self._keepers_of_results()
             self._ack_sub = self.session.declare_subscriber(self.keys.ack(), self._on_ack)
             self._was_alive = set(self.alive)
             # nothing of this epoch is in flight yet (frames an earlier incarnation sent were
@@ -176,14 +183,14 @@ class Grabber(Worker):
                         self._acks[n] = max(self._acks.get(n, -1), index - 1)
                 self._was_alive = alive
                 now = time.monotonic()
-                for n in self._ack_names:
+                for n in self._ack_names + self._keepers:
                     if n in alive:
                         self._missing_since.pop(n, None)
                     else:
                         self._missing_since.setdefault(n, now)
-                waiting = [n for n in self._ack_names
-                           if (n in alive and self._acks.get(n, -1) < need)
-                           or (n not in alive and now - self._missing_since[n] < MISSING_WAIT_S)]
+                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < need]
+                waiting += [n for n in self._ack_names + self._keepers
+                            if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
                 if not waiting:
                     break
                 if time.monotonic() > next_note:

@@ -119,9 +119,11 @@ class Reconstruction(Worker):
         """Mask and colour sizes per camera, from the segmentation workers of the layout."""
         from workers.segmentation import scales
 
+        from workers import worker_class
+
         masks, colours = {}, {}
         for w in self.layout.workers:
-            if w.kind != "segmentation":
+            if "mask" not in worker_class(w.kind).PRODUCES:
                 continue
             mask_scale, colour_scale = scales(w, self.layout, calib)
             cams = w.params.get("cameras")
@@ -137,7 +139,7 @@ class Reconstruction(Worker):
     def admit(self, key: str, msg: Mask) -> str | None:
         if msg.camera not in self.late:
             return "unknown camera"
-        if (msg.width, msg.height) != self.mask_sizes.get(msg.camera, (msg.width, msg.height)):
+        if (msg.width, msg.height) != self.mask_sizes.get(msg.camera):
             return f"mask {msg.width}x{msg.height} does not match the tables {self.mask_sizes.get(msg.camera)}"
         return None
 

@@ -56,7 +56,8 @@ class JsonLinesWriter:
                     self._note(frame)
                     keep += len(line)
             os.truncate(self.tmp, keep)
-        self.fh = open(self.tmp, "a", encoding="utf-8", buffering=1)
+        self.fh = open(self.tmp, "ab", buffering=0)
+        self.size = keep   # bytes of complete lines
 
     def _note(self, frame: int) -> None:
         if frame <= self.last_frame:
@@ -68,7 +69,13 @@ class JsonLinesWriter:
         """Append one frame's record; False when that frame is already in the file."""
         if frame in self.frames:
             return False
-        self.fh.write(json.dumps(record, separators=(",", ":")) + "\n")
+        line = (json.dumps(record, separators=(",", ":")) + "\n").encode()
+        try:
+            self.fh.write(line)   # one write, straight to the operating system
+        except OSError:           # e.g. disk full: the file ends with its last complete line
+            os.truncate(self.tmp, self.size)
+            raise
+        self.size += len(line)
         self._note(frame)
         return True
 
@@ -93,12 +100,7 @@ class Recorder(Worker):
         "voxels": False,   # also keep every frame's voxels in voxels.bin
     }
 
-    @classmethod
-    def acknowledges(cls, spec, layout) -> bool:
-        """Offline, the source waits for the recorder too (results are never dropped), when
-        the layout produces something it writes."""
-        produced = {s for w in layout.workers for s in worker_class(w.kind).PRODUCES}
-        return bool(produced & {"tracks", "poses"} or (spec.params.get("voxels") and "voxels" in produced))
+    KEEPS_RESULTS = True   # offline, the source waits while it restarts (see Worker.KEEPS_RESULTS)
 
     def subscriptions(self) -> list[str]:
         keys = super().subscriptions()

@@ -6,6 +6,7 @@ deploy/layouts/two_hosts.yaml --connect tcp/10.0.0.1:7447``.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 
@@ -49,10 +50,19 @@ def main(args) -> int:
         worker = worker_class(spec.kind)(spec, layout)
         return worker.run()
     except InputError as exc:
+        written = False
         if run.out:
             d = Path(run.out) / ERROR_DIR
-            d.mkdir(parents=True, exist_ok=True)
-            (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
+            for attempt in range(2):
+                try:
+                    d.mkdir(parents=True, exist_ok=True)
+                    (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
+                    written = True
+                    break
+                except OSError:   # the disk is full: free the launcher's reserve once, else say it here
+                    (Path(run.out) / ".reserve").unlink(missing_ok=True)
         if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
+            if not written:
+                print(f"smartroom: error: {exc}", file=sys.stderr)
             return 2
         raise
