@@ -59,6 +59,7 @@ class RunSpec:
     """What the launcher was asked to do (not part of a layout file's own text)."""
 
     recording: str | None = None
+    recording_id: str | None = None            # fingerprint of the recording (app.recording.fingerprint)
     calibration: str | None = None             # calibration file (live cameras)
     fps: float | None = None                   # the source's frame rate
     out: str | None = None
@@ -242,7 +243,8 @@ def _run_spec(data, path: str) -> RunSpec:
         if key not in known:
             raise LayoutError(f"{path}: run: unknown key {str(key)!r} (known: {', '.join(known)})")
         default = known[key].default if known[key].default is not MISSING else known[key].default_factory()
-        want = {"recording": str, "calibration": str, "out": str, "fps": (int, float), "frames": int}.get(
+        want = {"recording": str, "recording_id": str, "calibration": str, "out": str, "fps": (int, float),
+                "frames": int}.get(
             key, type(default))
         if value is not None and (not isinstance(value, want) or isinstance(value, bool) != isinstance(default, bool)):
             raise LayoutError(f"{path}: run: {key} has the wrong type ({value!r})")

@@ -73,7 +73,8 @@ class PipelineView:
                 fps_in=f.get("fps", 0.0) if final else f.get("fps_in", 0.0),
                 fps_out=f.get("fps", 0.0) if final else f.get("fps_out", 0.0),
                 latency_p50=lat.get("p50", 0.0), latency_p95=lat.get("p95", 0.0),
-                dropped=f.get("frames_dropped", 0), missing=f.get("frames_missing", 0),
+                dropped=f.get("frames_dropped", 0),
+                missing=f.get("frames_missing", 0) if final else f.get("frames_lost", 0),
                 cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
                 final=final, age_s=now - seen))
         rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
@@ -119,6 +120,23 @@ class PipelineView:
         return [f"{name}: {msg.figures['url']}" for name, (_, msg) in items
                 if isinstance(msg.figures.get("url"), str) and msg.figures["url"]]
 
+    def statuses(self) -> list[str]:
+        """What workers say they are doing before frames flow (compiling, building a background)."""
+        with self._lock:
+            items = sorted(self._stats.items())
+        return [f"{name}: {msg.figures['status']}" for name, (_, msg) in items
+                if isinstance(msg.figures.get("status"), str)]
+
+    def late_views(self) -> dict:
+        """Views given up on per camera (live reconstruction), all stages together."""
+        late: dict[str, int] = {}
+        with self._lock:
+            for _, msg in self._stats.values():
+                for cam, n in (msg.figures.get("late_views") or {}).items():
+                    if isinstance(n, int):
+                        late[cam] = late.get(cam, 0) + n
+        return late
+
     def verdict(self, rtf: float | None) -> str:
         if rtf is None:
             return "waiting"
@@ -134,10 +152,15 @@ class PipelineView:
             head.append(f"bottleneck={neck.name} busy={neck.busy:.2f}")
         if self.tracks() is not None:
             head.append(f"tracks={self.tracks()}")
+        late = self.late_views()
+        if late:
+            head.append("late=" + ",".join(f"{c}:{n}" for c, n in sorted(late.items())))
+        if rtf is None:
+            head += [f"[{s}]" for s in self.statuses()]
         parts = [" ".join(head)]
         for r in self.shown(rows):
             parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
-                         f"p95={r.latency_p95:.1f} drop={r.dropped} cpu={r.cpu:.0f} busy={r.busy:.2f}")
+                         f"p95={r.latency_p95:.1f} drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f} busy={r.busy:.2f}")
         return " | ".join(parts)
 
     def table(self) -> str:
@@ -155,10 +178,16 @@ class PipelineView:
         tracked = self.tracks()
         if tracked is not None:
             lines.append(f"people tracked: {tracked}")
-        cols = f"{'stage':<16}{'fps in':>8}{'fps out':>9}{'lat p50':>9}{'lat p95':>9}{'drops':>7}{'cpu %':>7}{'busy':>6}"
+        late = self.late_views()
+        if late:
+            lines.append("late views given up: " + ", ".join(f"{c} {n}" for c, n in sorted(late.items())))
+        if rtf is None:
+            lines += [f"starting  {s}" for s in self.statuses()]
+        cols = (f"{'stage':<16}{'fps in':>8}{'fps out':>9}{'lat p50':>9}{'lat p95':>9}{'drops':>7}{'lost':>6}"
+                f"{'cpu %':>7}{'busy':>6}")
         lines += ["", cols, "-" * len(cols)]
         for r in self.shown(rows):
             mark = " (ended)" if r.final else (f" (silent {r.age_s:.0f} s)" if r.age_s > SILENT_S else "")
             lines.append(f"{r.name:<16}{r.fps_in:>8.1f}{r.fps_out:>9.1f}{r.latency_p50:>7.1f}ms{r.latency_p95:>7.1f}ms"
-                         f"{r.dropped:>7}{r.cpu:>7.0f}{100 * r.busy:>5.0f}%{mark}")
+                         f"{r.dropped:>7}{r.missing:>6}{r.cpu:>7.0f}{100 * r.busy:>5.0f}%{mark}")
         return "\n".join(lines)

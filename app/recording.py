@@ -28,6 +28,15 @@ VIDEO_EXTENSIONS = (".mp4", ".avi")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 
+def fingerprint(rec) -> str:
+    """A short id of a recording's content: its calibration and frame count (results
+    name it, so they are never scored against another recording)."""
+    import hashlib
+    h = hashlib.sha1((rec.path / "calibration.yaml").read_bytes())
+    h.update(str(rec.frame_count).encode())
+    return h.hexdigest()[:12]
+
+
 class RecordingError(InputError):
     """A recording folder is missing something or holds something malformed."""
 

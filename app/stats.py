@@ -230,6 +230,8 @@ class StageLedger:
             "frames_out": frames_out,
             "frames_dropped": max(0, dropped),
             "frames_missing": max(0, expected - frames_in) if (final and expected is not None) else 0,
+            # while running: frames before the newest one received that never arrived
+            "frames_lost": max(0, self.last_frame + 1 - first - frames_in) if frames_in else 0,
             "items_in": self.items_in,
             "items_out": self.items_out,
             "items_dropped": self.items_dropped,

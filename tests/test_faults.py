@@ -381,3 +381,29 @@ def test_bad_output_folders_are_one_line_errors(long_recording, tmp_path):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and message in lines[0], r.stderr
     assert (done / "stats.json").read_text() == "{}"
+
+
+def test_eval_refuses_results_of_another_recording(long_recording, tmp_path):
+    other = write_tiny_recording(tmp_path / "other", frames=30, n_cameras=3)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    r = smartroom("run", "--recording", long_recording, "--headless", "--no-pace", "--frames", 20,
+                  "--layout", layout, "--out", out, timeout=120)
+    assert r.returncode == 0, r.stderr
+    r = smartroom("eval", "--recording", other, "--results", out)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "these results were made from" in lines[0], r.stderr
+
+
+def test_a_live_camera_that_never_opens_is_a_clear_error(long_recording, tmp_path):
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", recorder_voxels=False)
+    t0 = time.monotonic()
+    r = smartroom("run", "--live", "cam0=/nonexistent/cam0.mp4", "--live", "cam1=/nonexistent/cam1.mp4",
+                  "--calibration", Path(long_recording) / "calibration.yaml", "--headless", "--layout", layout,
+                  "--set", "grabber.open_timeout=2", "--out", out, timeout=60)
+    assert time.monotonic() - t0 < 30
+    assert r.returncode == 2, r.stderr
+    line = [x for x in r.stderr.splitlines() if x.startswith("smartroom: error:")]
+    assert len(line) == 1 and "no live camera delivered an image" in line[0] and "cam1" in line[0]

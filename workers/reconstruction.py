@@ -74,6 +74,8 @@ class Reconstruction(Worker):
         if not 0.005 <= p["voxel_size"] <= 0.5:
             raise InputError(f"reconstruction: voxel_size {p['voxel_size']} m is outside 0.005 .. 0.5 m")
         mask_sizes, colour_sizes = self._expected_sizes(calib)
+        self.status(f"building projection tables at {p['voxel_size'] * 100:g} cm "
+                    "(the first run also compiles the kernels, ~15 s)")
         if p["method"] == "fused":   # needs distance maps, which the segmentation worker does not send yet
             raise InputError("reconstruction: method fused is offline only (smartroom bench reconstruction --hull)")
         try:

@@ -80,6 +80,7 @@ class Segmentation(Worker):
         background = self.recording.background(cam)
         if background is None:
             n = self.params["median_frames"]
+            self.status(f"estimating the background of {cam} from {n} frames of the recording")
             background, uncertain = estimate_background_robust(self.recording.sample(cam, n))
             self.log.warning("camera %s: no background image; estimated from %d frames of the recording with the "
                              "people left out; %.1f%% of the image stayed uncertain (someone there in almost every "

@@ -66,16 +66,34 @@ def evaluate_tracking(recording: Path, tracks_path: Path) -> dict:
     return out
 
 
+def check_results_belong(rec, results: Path) -> None:
+    """Results are scored only against the recording they were made from: the run's
+    ``layout.yaml`` names the recording and its fingerprint (calibration and frame count)."""
+    from app.errors import InputError
+    from app.files import read_yaml
+    from app.recording import fingerprint
+
+    layout = results / "layout.yaml"
+    if not layout.is_file():
+        return   # results made by other means: nothing to check against
+    run = (read_yaml(layout, "results layout") or {}).get("run") or {}
+    made = run.get("recording_id")
+    if made and made != fingerprint(rec):
+        raise InputError(f"{results}: these results were made from {run.get('recording')} "
+                         f"(fingerprint {made}), not from {rec.path} ({fingerprint(rec)})")
+
+
 def main(args) -> int:
     from app.errors import InputError
     from app.files import write_json
     from app.recording import Recording
 
     recording = Path(args.recording)
-    Recording(recording)  # validates the folder
+    rec = Recording(recording)  # validates the folder
     results = Path(args.results)
     if not results.is_dir():
         raise InputError(f"{results}: results folder not found")
+    check_results_belong(rec, results)
     report = {}
     if (results / "voxels.bin").is_file():
         if not (recording / "bodies.jsonl").is_file():

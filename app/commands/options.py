@@ -72,7 +72,9 @@ def resolve_source(args) -> RunSpec:
         import sys
         print(f"smartroom: --frames {args.frames}, but {path} has only {rec.frame_count} frames; running "
               f"{rec.frame_count}", file=sys.stderr)
-    return RunSpec(recording=str(Path(path).resolve()), fps=rec.fps, frames=frames, pace=args.pace)
+    from app.recording import fingerprint
+    return RunSpec(recording=str(Path(path).resolve()), recording_id=fingerprint(rec), fps=rec.fps, frames=frames,
+                   pace=args.pace)
 
 
 RESULT_FILES = ("stats.json", "layout.yaml", "tracks.jsonl", "poses.jsonl", "voxels.bin")
