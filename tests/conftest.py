@@ -33,3 +33,23 @@ def start_smartroom(*args, **kw):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     return subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env, **kw)
+
+
+SPINE_LAYOUT = """room: smartroom
+bus: {listen: [tcp/127.0.0.1:0]}
+workers:
+  - {name: grabber, kind: grabber}
+  - {name: segmentation, kind: segmentation}
+  - {name: reconstruction, kind: reconstruction, params: {voxel_size: 0.04}}
+  - {name: recorder, kind: recorder}
+  - {name: monitor, kind: monitor}
+"""
+
+
+@pytest.fixture(scope="session")
+def spine_layout(tmp_path_factory):
+    """The spine alone (grabber, segmentation, reconstruction, recorder, monitor): tests of
+    the process machinery that need not carry tracking and pose."""
+    path = tmp_path_factory.mktemp("layouts") / "spine.yaml"
+    path.write_text(SPINE_LAYOUT)
+    return path
