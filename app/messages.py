@@ -242,12 +242,14 @@ class Frame(Message):
     ARRAYS: ClassVar[tuple[str, ...]] = ("image",)
     camera: str = ""
     cameras: list = field(default_factory=list)
+    scale: int = 1    # the image is 1/scale of the camera's calibrated size (the grabber reduced it)
     image: np.ndarray = None
 
     def validate(self) -> None:
         super().validate()
         _name(self, "camera")
         _names(self, "cameras")
+        _int(self, "scale", 1, 16)
         img = _array(self, "image", "|u1", (None, None, 3))
         if not (0 < img.shape[0] <= _MAX_SIDE and 0 < img.shape[1] <= _MAX_SIDE):
             raise MessageError(f"Frame: image of {img.shape[1]}x{img.shape[0]} pixels")

@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -206,7 +207,7 @@ class Recording:
         return self.calibration.names
 
     def frames(self, cameras=None, start: int = 0, stop: int | None = None, skip_bad: bool = False,
-               lost: dict | None = None):
+               lost: dict | None = None, transform=None):
         """Yield ``(index, {camera: BGR image})`` from ``start`` up to ``stop`` (exclusive).
 
         Raises :class:`RecordingError` naming the file when a frame has the wrong size,
@@ -219,11 +220,22 @@ class Recording:
         stop = self.frame_count if stop is None else min(stop, self.frame_count)
         sources = {n: self._open(n) for n in names}
         lost = {} if lost is None else lost
+        # the cameras decode in parallel (OpenCV releases the GIL), each with ``transform``
+        pool = ThreadPoolExecutor(len(sources), thread_name_prefix="decode") if len(sources) > 1 else None
+
+        def read(item, i):
+            n, src = item
+            img = src.read(i)
+            if img is None:
+                return None
+            self.check_image(n, img, src.shown)
+            return img if transform is None else transform(n, img)
         try:
             for i in range(start, stop):
                 images = {}
-                for n, src in sources.items():
-                    img = src.read(i)
+                got = (pool.map(read, sources.items(), [i] * len(sources)) if pool is not None
+                       else [read(item, i) for item in sources.items()])
+                for (n, src), img in zip(sources.items(), got):
                     if img is None:
                         if not skip_bad:
                             raise RecordingError(f"{src.shown}: frame {i} of {self.frame_count} cannot be decoded "
@@ -232,11 +244,12 @@ class Recording:
                         lost[n] = lost.get(n, 0) + 1
                         src.pos = -1   # seek on the next read
                         continue
-                    self.check_image(n, img, src.shown)
                     images[n] = img
                 if images:
                     yield i, images
         finally:
+            if pool is not None:
+                pool.shutdown()
             for src in sources.values():
                 src.close()
 

@@ -162,12 +162,13 @@ class CameraSegmenter:
             self.model.apply(shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
         self.trained = True
 
-    def apply(self, image: np.ndarray) -> np.ndarray:
-        """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting."""
+    def apply(self, image: np.ndarray, prescaled: int = 1) -> np.ndarray:
+        """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting.
+        ``prescaled``: the image is already 1/prescaled of the camera's size (it divides scale)."""
         self.frames += 1
         fast = not self.trained and self.frames <= self.params.bootstrap
         rate = -1.0 if fast else self.params.learning_rate
-        self.small = shrink(image, self.params.scale)
+        self.small = shrink(image, self.params.scale // prescaled)
         raw = self.model.apply(self.small, learningRate=rate)
         fg = (raw == 255).astype(np.uint8)
         if self._open is not None:

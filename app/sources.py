@@ -27,7 +27,7 @@ class RecordingSource:
     live = False
 
     def __init__(self, path, cameras=None, start: int = 0, frames: int | None = None, skip_bad: bool = False,
-                 lost: dict | None = None):
+                 lost: dict | None = None, transform=None):
         self.recording = Recording(path)
         self.calibration = self.recording.calibration
         self.cameras = list(cameras) if cameras else self.recording.cameras
@@ -42,9 +42,11 @@ class RecordingSource:
         self.expected = stop - start
         self.skip_bad = skip_bad
         self.lost = {} if lost is None else lost   # camera -> undecodable frames skipped
+        self.transform = transform                 # (camera, image) -> image, in the decoding threads
 
     def frames(self):
-        yield from self.recording.frames(self.cameras, self.start, self.stop, skip_bad=self.skip_bad, lost=self.lost)
+        yield from self.recording.frames(self.cameras, self.start, self.stop, skip_bad=self.skip_bad, lost=self.lost,
+                                         transform=self.transform)
 
     def close(self):
         pass

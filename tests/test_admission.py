@@ -121,3 +121,13 @@ def test_valid_messages_pass_validation_and_keep_their_epoch():
         back = decode(encode(msg))
         back.validate()
         assert back.epoch == msg.epoch
+
+
+def test_frames_reduced_by_the_grabber_give_the_segmentation_the_same_pixels():
+    """The grabber sends frames at 1/scale; the segmentation finishes the reduction, and the
+    result is the image it would have reduced itself (powers of two by halving)."""
+    from app.segmentation import shrink
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 255, (1088, 1920, 3), dtype=np.uint8)
+    assert np.array_equal(shrink(shrink(img, 2), 2), shrink(img, 4))
+    assert np.array_equal(shrink(shrink(img, 4), 1), shrink(img, 4))

@@ -19,6 +19,7 @@ import time
 
 from app.errors import InputError
 from app.messages import Frame
+from app.recording import Recording
 from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
 from workers.base import Worker
@@ -37,14 +38,16 @@ class Grabber(Worker):
         "window": 2,             # offline: frames in flight beyond the slowest stage's last one
         "open_timeout": 10.0,    # live: seconds for a camera to deliver its first image
         "skip_bad_frames": False,  # a recording's undecodable frames: stop with an error, or skip them
+        "scale": 0,              # send frames at 1/scale (0: as small as the segmentation allows; 1: full size)
     }
     RANGES = {"start": (0, 1 << 40), "ready_timeout": (0.0, 3600.0), "window": (1, 64),
-              "open_timeout": (0.5, 600.0)}
+              "open_timeout": (0.5, 600.0), "scale": (0, 16)}
 
     def setup(self) -> None:
         run = self.layout.run
         cams = self.cameras()
         self.epoch = time.time_ns() // 1_000_000     # a new epoch per incarnation
+        self.scale = 1
         self._epoch = self.epoch
         self.lost: dict[str, int] = {}
         if run.live:
@@ -60,9 +63,10 @@ class Grabber(Worker):
             first = self.params["start"]
             resume = max(first, self._resume) if self._resume is not None else first
             total = RecordingSource(run.recording, cams, start=first, frames=run.frames).stop
+            self.scale = self._send_scale(Recording(run.recording).calibration)
             self.source = RecordingSource(run.recording, cams, start=min(resume, total - 1),
                                           frames=max(0, total - resume), skip_bad=self.params["skip_bad_frames"],
-                                          lost=self.lost)
+                                          lost=self.lost, transform=self._reduce if self.scale > 1 else None)
             self.first = first
             self.total = total - first
             if resume >= total:
@@ -71,6 +75,34 @@ class Grabber(Worker):
         self._acks: dict[str, int] = {}
         self._ack_cond = threading.Condition()
         self.t0 = None
+
+    def _send_scale(self, calib) -> int:
+        """How much smaller than the camera the frames may travel: the largest power of two
+        that divides every mask and colour scale of the layout's segmentation workers and
+        every camera's size (HD frames are 25 MB a set; the segmentation reduces them anyway)."""
+        from math import gcd
+
+        from workers import worker_class
+        from workers.segmentation import scales
+
+        if self.params["scale"]:
+            return int(self.params["scale"])
+        need = 0
+        for w in self.layout.workers:
+            if "mask" in worker_class(w.kind).PRODUCES:
+                mask, colour = scales(w, self.layout, calib)
+                need = gcd(need, mask)
+                if colour:
+                    need = gcd(need, colour)
+        scale = 1
+        while need and need % (scale * 2) == 0 and all(
+                c.width % (scale * 2) == 0 and c.height % (scale * 2) == 0 for c in calib.cameras):
+            scale *= 2
+        return scale
+
+    def _reduce(self, camera: str, image):
+        from app.segmentation import shrink
+        return shrink(image, self.scale)
 
     # -- across restarts -------------------------------------------------------------
     _resume: int | None = None
@@ -123,7 +155,7 @@ class Grabber(Worker):
         cameras = sorted(images)
         for cam, image in images.items():
             self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
-                                                     image=image, epoch=self.epoch))
+                                                     image=image, epoch=self.epoch, scale=self.scale))
         return True
 
     def _filters(self) -> list[str]:

@@ -99,17 +99,19 @@ class Segmentation(Worker):
         known = self.known_cameras
         if (mine is not None and msg.camera not in mine) or (known is not None and msg.camera not in known):
             return "unknown camera"
+        if self.scale % msg.scale or (self.colour_scale and self.colour_scale % msg.scale):
+            return f"frame reduced by {msg.scale}, which does not divide the mask scale {self.scale}"
         return None
 
     def handle(self, key: str, msg: Frame) -> None:
         seg = self._segmenter(msg.camera)
-        mask = seg.apply(msg.image)
+        mask = seg.apply(msg.image, prescaled=msg.scale)
         scale = self.colour_scale
         colour = None
         if scale == self.scale:
             colour = seg.small   # the frame the mask was computed on
         elif scale:
-            colour = shrink(msg.image, scale)
+            colour = shrink(msg.image, scale // msg.scale)
         self.publish(self.keys.mask(msg.camera),
                      Mask.pack(mask, frame=msg.frame, stamp=msg.stamp, t=msg.t, camera=msg.camera,
                                colour_scale=max(1, scale), colour=colour, cameras=list(msg.cameras)))

@@ -5,6 +5,8 @@
   in ``--out``. ``--sweep voxel=2,3,4,5`` (or ``--sweep worker.param=a,b``) repeats it
   and tabulates RTF against the parameter.
 - ``smartroom bench bus``: codec + zenoh latency and throughput between two processes.
+- ``smartroom bench grabber``: decode, reduce and encode cost per camera at 640x480 and
+  1920x1088, and a set of four cameras decoded serially and in parallel.
 - ``smartroom bench reconstruction``: segmentation + reconstruction + colouring + surface
   per frame on one core for voxel sizes x methods x colourings, and accuracy against
   the true body volume (default: the simulated meeting3 with 5 cameras).
@@ -20,7 +22,7 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber")
 
 
 def add_arguments(p) -> None:
@@ -171,9 +173,17 @@ def _tracking(args, out: Path) -> dict:
     return result
 
 
+def _grabber(args, out: Path) -> dict:
+    from app.benchmarks import grabber
+
+    rows = grabber.run(frames=args.frames or 40)
+    print(grabber.format_table(rows))
+    return {"grabber": rows}
+
+
 def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
-    figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction,
-               "simulate": _simulate, "pose": _pose, "tracking": _tracking}[args.target](args, out)
+    figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
+               "pose": _pose, "tracking": _tracking, "grabber": _grabber}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
