@@ -61,16 +61,17 @@ class TrackerParams:
     z_min: float = 0.3
     z_max: float = 1.4
     new_distance: float = 0.5      # no new track closer than this to a target (m, xy)
-    new_distance_merged: float = 0.8   # the same for people merged into a tracked component
+    new_distance_merged: float = 0.6   # the same for people merged into a tracked component
     claim_radius: float = 0.45     # voxels this close to a target (xy) are its own
     confirm_frames: int = 5
-    duplicate_distance: float = 0.25
-    duplicate_frames: int = 3
+    duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
+    duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
     min_support_kg: float = 10.0
     lost_frames: int = 8
     no_person_frames: int = 12
     share_frames: int = 8          # a younger track whose share is no person this long is a duplicate
     refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
+    refine_radius: float = 0.45
     seed: int = 0
 
     @classmethod
@@ -108,6 +109,7 @@ class MultiTracker:
         self.candidates: list[tuple[np.ndarray, int]] = []
         self.next_id = 1
         self.deleted = 0
+        self._labeller = None
 
     # -- one frame --------------------------------------------------------------------
     def update(self, scene: SceneFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -124,11 +126,11 @@ class MultiTracker:
 
     def _refine(self, scene: SceneFrame) -> None:
         """Beyond the thesis (``refine``): each target's estimate becomes the centroid of
-        the voxels within ``claim_radius`` (xy) that are nearer to it than to any other
+        the voxels within ``refine_radius`` (xy) that are nearer to it than to any other
         target, so the filter's estimate is re-centred on its share of the mass (the
         filters keep their samples / particles; identities stay theirs)."""
         xs = np.array([t.target.x for t in self.tracks])
-        r = self.p.claim_radius
+        r = self.p.refine_radius
         for i, t in enumerate(self.tracks):
             near = scene.near_xy(xs[i], r)
             if near.size == 0:
@@ -217,23 +219,26 @@ class MultiTracker:
         found = []
         targets_xy = np.array([t.target.x[:2] for t in self.tracks]).reshape(-1, 2)
         for c in np.unique(scene.labels[free]):
-            sel = np.nonzero(free & (scene.labels == c))[0]
-            if c not in hosts:
+            if c not in hosts:                           # a component no target holds
                 sel = np.nonzero(scene.labels == c)[0]
-                feats = scene.features[c:c + 1]          # a component no target holds
-                distance = p.new_distance
-            else:                                        # the free part of a tracked component
-                distance = p.new_distance_merged
-                feats = component_features(scene.indices[sel], np.zeros(len(sel), np.int64), 1,
-                                           scene.origin, scene.voxel_size).astype(np.float64)
-                if self.classifier is not None and not self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])[0]:
+                pieces = [(sel, scene.features[c:c + 1], p.new_distance)]
+            else:                                        # the free pieces of a tracked component
+                sel = np.nonzero(free & (scene.labels == c))[0]
+                pieces = [(part, None, p.new_distance_merged) for part in self._pieces(scene, sel)]
+            for part, feats, distance in pieces:
+                if feats is None:
+                    feats = component_features(scene.indices[part], np.zeros(len(part), np.int64), 1,
+                                               scene.origin, scene.voxel_size).astype(np.float64)
+                    if self.classifier is not None:
+                        looks = bool(self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])[0])
+                    else:
+                        looks = feats[0, 0] >= 4 * p.min_support_kg
+                    if not looks:
+                        continue
+                centre = scene.centres[part].mean(axis=0)
+                if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < distance ** 2).any():
                     continue
-                if self.classifier is None and feats[0, 0] < 4 * p.min_support_kg:
-                    continue
-            centre = scene.centres[sel].mean(axis=0)
-            if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < distance ** 2).any():
-                continue
-            found.append(centre)
+                found.append(centre)
         # confirmation: a candidate seen again near where it was the frame before
         nxt = []
         for c in found:
@@ -247,6 +252,17 @@ class MultiTracker:
             else:
                 nxt.append((c, count))
         self.candidates = nxt
+
+    def _pieces(self, scene: SceneFrame, sel: np.ndarray) -> list[np.ndarray]:
+        """Connected pieces (26-connectivity) of a subset of the voxels."""
+        from app.components import Labeller
+
+        dims = tuple(int(d) for d in (scene.grid.shape if scene.grid is not None else scene.indices.max(0) + 1))
+        if self._labeller is None or self._labeller.grid.shape != dims:
+            self._labeller = Labeller(dims)
+        labels, n = self._labeller(scene.indices[sel])
+        order = np.argsort(labels, kind="stable")
+        return np.split(sel[order], np.cumsum(np.bincount(labels, minlength=n))[:-1])
 
     def _start(self, centre: np.ndarray) -> np.ndarray:
         x = centre.copy()
