@@ -38,7 +38,9 @@ def segment_frames(recording, frames: int, scale: int = 2, colour_scale: int | N
     segs = {}
     for cam in rec.cameras:
         bg = rec.background(cam)
-        segs[cam] = CameraSegmenter(params, bg if bg is not None else estimate_background_robust(rec.sample(cam, 25))[0])
+        if bg is None:
+            bg = estimate_background_robust(rec.sample(cam, 25))[0]
+        segs[cam] = CameraSegmenter(params, bg)
     out, seg_ms, indices = [], [], []
     for i, images in rec.frames(stop=frames):
         t0 = time.perf_counter()

@@ -10,10 +10,11 @@ reconstructed as matter, which a tracker could take for a person), and ghost vox
 
 Issue 8's hull figures: ``volume_ratio``, the occupied volume over the true body
 volume (the visual hull's excess, ghosts included: 1 is the body itself),
-``volume_ratio_near`` the same for the voxels within ``near`` of a body, and, given the person of each true voxel, ``fragmentation``: for each
+``volume_ratio_near`` the same for the voxels within ``near`` of a body, and, given
+the person of each true voxel, the fragmentation (``largest_share``): for each
 person, the share of the reconstructed voxels near that person (nearer to that body
 than ``near``) held by the largest connected component among them; a person "in
-pieces" scores under 0.9. ``pieces`` is the frame's worst (lowest) share.
+pieces" scores under 0.9 (``largest_share`` is the frame's worst, lowest, share).
 """
 from __future__ import annotations
 
