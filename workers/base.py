@@ -559,10 +559,10 @@ class Worker:
             self._periodic()
             self.tick()
             if not more:
-                self.input_ended = True
+                self.input_ended = not self.stopping   # produce() gives up at once when told to stop
                 break
         if self._signal == signal.SIGINT:
-            self.input_ended = True   # a source asked to stop: its input has ended
+            self.input_ended = True   # a source asked to stop (Ctrl-C, the launcher): its input has ended
 
     def run(self) -> int:
         """Run the worker until its stream ends or it is told to stop; the exit code."""
