@@ -47,7 +47,7 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
     if source == "hull":
         from app.reconstruction import Reconstructor
         size = (320, 240)
-        rec = Reconstructor(cal, voxel_size, mask_sizes={c: size for c in sim.cameras}, colouring="none")
+        rec = Reconstructor(cal, voxel_size, mask_sizes={c: size for c in sim.cameras}, colouring="none", min_top=0.25)
     out = []
     for i in frames:
         people = sim.people(i)
