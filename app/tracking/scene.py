@@ -60,6 +60,22 @@ def _write(grid, idx, value_from_index):
         grid[idx[a, 0], idx[a, 1], idx[a, 2]] = a if value_from_index else -1
 
 
+@njit(cache=True, nogil=True)
+def _within(centres, order, a, b, x, y, r2):
+    """List positions ``a .. b`` (through ``order`` when given) whose centre lies within
+    ``sqrt(r2)`` of ``(x, y)``."""
+    out = np.empty(b - a, dtype=np.int64)
+    m = 0
+    for k in range(a, b):
+        i = order[k] if order.shape[0] else k
+        dx = centres[i, 0] - x
+        dy = centres[i, 1] - y
+        if dx * dx + dy * dy <= r2:
+            out[m] = i
+            m += 1
+    return out[:m]
+
+
 class OccupancyIndex:
     """Grid of list positions (-1: empty), kept between frames."""
 
@@ -120,6 +136,5 @@ class SceneFrame:
         hi_x = int(np.ceil((xy[0] + radius - self.origin[0]) / self.voxel_size - 0.5))
         ix = self.indices[:, 0] if self._x_sorted else self._ix
         a, b = np.searchsorted(ix, lo_x, "left"), np.searchsorted(ix, hi_x, "right")
-        cand = np.arange(a, b) if self._x_sorted else self._order[a:b]
-        d2 = ((self.centres[cand, :2] - np.asarray(xy)[:2]) ** 2).sum(axis=1)
-        return cand[d2 <= radius * radius]
+        order = self._order if not self._x_sorted else np.zeros(0, dtype=np.int64)
+        return _within(self.centres, order, int(a), int(b), float(xy[0]), float(xy[1]), radius * radius)

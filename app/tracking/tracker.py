@@ -136,9 +136,10 @@ class MultiTracker:
             if near.size == 0:
                 continue
             pts = scene.centres[near]
-            if len(xs) > 1:
-                d = ((pts[:, None, :2] - xs[None, :, :2]) ** 2).sum(axis=2)
-                pts = pts[d.argmin(axis=1) == i]
+            close = np.nonzero(((xs[:, :2] - xs[i, :2]) ** 2).sum(axis=1) < (2 * r) ** 2)[0]
+            if len(close) > 1:   # only targets whose discs overlap compete for voxels
+                d = ((pts[:, None, :2] - xs[None, close, :2]) ** 2).sum(axis=2)
+                pts = pts[close[d.argmin(axis=1)] == i]
             if len(pts) >= 3:
                 t.target.x = pts.mean(axis=0)
 
@@ -224,6 +225,8 @@ class MultiTracker:
                 pieces = [(sel, scene.features[c:c + 1], p.new_distance)]
             else:                                        # the free pieces of a tracked component
                 sel = np.nonzero(free & (scene.labels == c))[0]
+                if len(sel) * scene.voxel_size ** 3 * 1100.0 < 4 * p.min_support_kg:
+                    continue                             # too little left for a person
                 pieces = [(part, None, p.new_distance_merged) for part in self._pieces(scene, sel)]
             for part, feats, distance in pieces:
                 if feats is None:
