@@ -165,6 +165,9 @@ class Viewer(Worker):
             parts.append("RTF - (waiting for the stages)" if limiting is None else f"{limiting.fps_out:.1f} fps")
         else:
             parts += [f"RTF {rtf:.2f}", f"{limiting.fps_out:.1f} fps"]
+        late = self.pipeline.late_views()
+        if late:   # live views the reconstruction gave up on, per camera
+            parts.append("late " + " ".join(f"{c}:{n}" for c, n in sorted(late.items())))
         if ended:
             parts.append("stream ended")
         colour = (1.0, 1.0, 1.0) if rtf is None else OK_COLOUR if rtf >= REAL_TIME else BEHIND_COLOUR
