@@ -48,6 +48,8 @@ class Reconstructor:
         (:mod:`.fused`, Eqs. 5-6); its "masks" are per-pixel squared Mahalanobis
         distance maps (float32, :class:`app.segmentation.YuvBackground`).
     alpha : the confidence level of the fused method's chi-square thresholds (0.99).
+    samples : the fused method's samples per projected area: ``"all"`` its pixels
+        (default) or ``"sqrt"``, the paper's ``sqrt(A)`` (see :mod:`.fused`).
     colouring : ``"visibility"`` (depth buffers, default), ``"raymarch"`` (the thesis's
         line-of-sight reference), ``"naive"`` (mean over all cameras, no surface) or
         ``"none"`` (no colours, no surface).
@@ -80,7 +82,7 @@ class Reconstructor:
                  threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
                  occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
                  occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
-                 abstain_support: bool = True, alpha: float = 0.99):
+                 abstain_support: bool = True, alpha: float = 0.99, samples: str = "all"):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -131,8 +133,11 @@ class Reconstructor:
                 raise ValueError(f"alpha must be in [0.5, 1), got {alpha}")
             self.alpha = float(alpha)
             self._dsat = np.zeros(t.sat_total, dtype=np.float64)
+            if samples not in ("all", "sqrt"):
+                raise ValueError(f"samples must be all or sqrt, got {samples!r}")
+            self.samples = samples
             largest = max(w * h for w, h in t.mask_sizes)
-            self.thresholds = chi2_thresholds(alpha, int(np.ceil(np.sqrt(largest))) + 1)
+            self.thresholds = chi2_thresholds(alpha, largest if samples == "all" else int(np.ceil(np.sqrt(largest))) + 1)
             self._fused_masks: dict = {}
         self.occluders = None
         if occlusion == "learnt":
@@ -309,7 +314,7 @@ class Reconstructor:
             for lvl in range(t.box_levels):
                 n_edge, n_full = classify_cells_fused(cells, t.boxes[lvl], cams, self._dsat, self._sat, t.sat_offset,
                                                       t.sat_stride, self.thresholds, k, mv, lvl < last,
-                                                      self._edge[lvl], self._full[lvl])
+                                                      self._edge[lvl], self._full[lvl], self.samples == "sqrt")
                 if n_full:
                     n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
                 cells = self._edge[lvl][:n_edge]
