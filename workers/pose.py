@@ -60,7 +60,8 @@ class Pose(Worker):
         except (TypeError, ValueError) as exc:
             raise InputError(f"pose: {exc}") from None
         share = p.get("share")
-        if share is not None and not (isinstance(share, (list, tuple)) and len(share) == 2 and 0 <= share[0] < share[1]):
+        valid = isinstance(share, (list, tuple)) and len(share) == 2 and 0 <= share[0] < share[1]
+        if share is not None and not valid:
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
         self.share = share
         self.estimator = None

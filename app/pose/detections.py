@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, N_DOF, neutral_state, standing_root_height
+from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, neutral_state, standing_root_height
 
 __all__ = ["Detections", "detect", "Importance"]
 

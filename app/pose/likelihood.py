@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from app.pose.flesh import PART, PARTS, Flesh
-from app.pose.model import DOF_AXIS, DOF_SEGMENT, N_SEG, SEG_OFFSET, SEG_PARENT, fk_segments
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
 from app.pose.observation import Observation
 
 __all__ = ["Scorer", "SIGMA2", "part_variances", "log_likelihood", "score_particles"]

@@ -79,7 +79,8 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
 
 def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None) -> dict:
     """Run the estimator over a clip: ``{"estimates": [{id: joints}], "active":
-    [{id: flags}], "ms": [...], "cpu_ms": [...]}`` (wall and thread CPU time per frame). ``corrupt(frame, estimator)`` may tamper with the
+    [{id: flags}], "ms": [...], "cpu_ms": [...]}`` (wall and thread CPU time per frame).
+    ``corrupt(frame, estimator)`` may tamper with the
     filters before a frame (recovery tests)."""
     est = PoseEstimator(settings)
     estimates, active, ms, cpu_ms = [], [], [], []
