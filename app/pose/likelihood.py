@@ -65,7 +65,9 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
 
     Pass 1 moves every LUT point to the particle's pose, scores outside / occupancy /
     surface and stamps the double-occupancy grid (cell -> the first part there, and
-    whether another part came too); pass 2 counts each part's points in shared cells."""
+    whether another part came too); pass 2 counts each part's points in shared cells.
+    The LUT is grouped by part (one segment each), so a part's rotation and origin
+    stay in registers and its counts in locals."""
     S = SEG_PARENT_G.shape[0]
     R = np.empty((S, 3, 3))
     O = np.empty((S, 3))
@@ -78,49 +80,69 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
     flat_multi = do_multi.reshape(-1)
     inv = 1.0 / vsize
     dinv = 1.0 / do_size
+    # part ranges of the (part-sorted) LUT
+    starts = np.zeros(n_parts + 1, dtype=np.int64)
+    for m in range(M):
+        starts[part[m] + 1] += 1
+    for q in range(n_parts):
+        starts[q + 1] += starts[q]
     for k in range(states.shape[0]):
         token = token0 + k
         fk_segments(states[k], height, SEG_PARENT_G, SEG_OFFSET_G, DOF_SEGMENT_G, DOF_AXIS_G, R, O)
+        shared = False
         for q in range(n_parts):
             for c in range(5):
                 out[k, q, c] = 0.0
-        shared = False
-        for m in range(M):
-            q = part[m]
-            if not active[q]:
-                cells[m] = -1
+            m0, m1 = starts[q], starts[q + 1]
+            if not active[q] or m1 <= m0:
+                for m in range(m0, m1):
+                    cells[m] = -1
                 continue
-            s = seg[m]
-            px, py, pz = pts[m, 0], pts[m, 1], pts[m, 2]
-            x = O[s, 0] + R[s, 0, 0] * px + R[s, 0, 1] * py + R[s, 0, 2] * pz
-            y = O[s, 1] + R[s, 1, 0] * px + R[s, 1, 1] * py + R[s, 1, 2] * pz
-            z = O[s, 2] + R[s, 2, 0] * px + R[s, 2, 1] * py + R[s, 2, 2] * pz
-            if x < room_lo[0] or y < room_lo[1] or z < room_lo[2] or x > room_hi[0] or y > room_hi[1] or z > room_hi[2]:
-                out[k, q, 0] += 1.0
-            i = _cell(x, origin[0], inv, X)
-            j = _cell(y, origin[1], inv, Y)
-            l = _cell(z, origin[2], inv, Z)
-            inside = i >= 0 and j >= 0 and l >= 0
-            if inside and occ[i, j, l] != 0:
-                out[k, q, 2] += 1.0
-            if surf[m]:
-                out[k, q, 4] += 1.0
-                out[k, q, 3] += 1.0 - (prox[i, j, l] if inside else 0.0)
-            a = _cell(x, do_origin[0], dinv, DX)
-            b = _cell(y, do_origin[1], dinv, DY)
-            c = _cell(z, do_origin[2], dinv, DZ)
-            if a >= 0 and b >= 0 and c >= 0:
-                f = (a * DY + b) * DZ + c
-                cells[m] = f
-                if flat_stamp[f] != token:
-                    flat_stamp[f] = token
-                    flat_owner[f] = q
-                    flat_multi[f] = 0
-                elif flat_owner[f] != q:
-                    flat_multi[f] = 1
-                    shared = True
-            else:
-                cells[m] = -1
+            s = seg[m0]
+            r00, r01, r02 = R[s, 0, 0], R[s, 0, 1], R[s, 0, 2]
+            r10, r11, r12 = R[s, 1, 0], R[s, 1, 1], R[s, 1, 2]
+            r20, r21, r22 = R[s, 2, 0], R[s, 2, 1], R[s, 2, 2]
+            o0, o1, o2 = O[s, 0], O[s, 1], O[s, 2]
+            n_out = 0.0
+            n_occ = 0.0
+            n_miss = 0.0
+            n_surf = 0.0
+            for m in range(m0, m1):
+                px, py, pz = pts[m, 0], pts[m, 1], pts[m, 2]
+                x = o0 + r00 * px + r01 * py + r02 * pz
+                y = o1 + r10 * px + r11 * py + r12 * pz
+                z = o2 + r20 * px + r21 * py + r22 * pz
+                if x < room_lo[0] or y < room_lo[1] or z < room_lo[2] or x > room_hi[0] or y > room_hi[1] \
+                        or z > room_hi[2]:
+                    n_out += 1.0
+                i = _cell(x, origin[0], inv, X)
+                j = _cell(y, origin[1], inv, Y)
+                l = _cell(z, origin[2], inv, Z)
+                inside = i >= 0 and j >= 0 and l >= 0
+                if inside and occ[i, j, l] != 0:
+                    n_occ += 1.0
+                if surf[m]:
+                    n_surf += 1.0
+                    n_miss += 1.0 - (prox[i, j, l] if inside else 0.0)
+                a = _cell(x, do_origin[0], dinv, DX)
+                b = _cell(y, do_origin[1], dinv, DY)
+                c = _cell(z, do_origin[2], dinv, DZ)
+                if a >= 0 and b >= 0 and c >= 0:
+                    f = (a * DY + b) * DZ + c
+                    cells[m] = f
+                    if flat_stamp[f] != token:
+                        flat_stamp[f] = token
+                        flat_owner[f] = q
+                        flat_multi[f] = 0
+                    elif flat_owner[f] != q:
+                        flat_multi[f] = 1
+                        shared = True
+                else:
+                    cells[m] = -1
+            out[k, q, 0] = n_out
+            out[k, q, 2] = n_occ
+            out[k, q, 3] = n_miss
+            out[k, q, 4] = n_surf
         if not shared:
             continue
         for m in range(M):
