@@ -6,6 +6,7 @@ cached) and every tracker configuration (filter x sample / particle count) runs 
 the person test and the tracker over the same frames on one core, in this process.
 Each row: MOTP (mm), MOTA, IDF1, the error ratios and the ms per frame of CCA +
 tracking (median and p95; the timing is of this process on a possibly shared machine).
+A filter marked ``*`` runs as the thesis has it (``:thesis`` in ``--filters``).
 """
 from __future__ import annotations
 
@@ -29,27 +30,34 @@ HEADER = (f"{'recording':<11}{'voxel':>6} {'filter':<10}{'N':>5}{'MOTP mm':>9}{'
           f"{'miss':>7}{'fp':>7}{'mme':>5}{'ids':>5}{'ms p50':>8}{'ms p95':>8}")
 
 
-def parse_configs(text: str) -> list[tuple[str, int | None]]:
-    """``naive,ss_colour:400,pf_raw:100`` -> configs."""
+def parse_configs(text: str) -> list[tuple]:
+    """``naive,ss_colour:400,pf_raw:100,ss_colour:400:thesis`` -> configs; ``:thesis``
+    runs the filter as the thesis has it (no re-centring on the voxel share, no fresh
+    samples in Sparse Sampling) to show what the improvements change."""
     from app.errors import InputError
     from app.tracking.tracker import FILTERS
 
     out = []
     for item in (t.strip() for t in text.split(",") if t.strip()):
-        name, _, n = item.partition(":")
+        name, _, rest = item.partition(":")
+        n, _, variant = rest.partition(":")
         if name not in FILTERS:
             raise InputError(f"--filters: unknown filter {name!r} ({', '.join(FILTERS)})")
+        if variant not in ("", "thesis"):
+            raise InputError(f"--filters: {item!r}: the variant after the count can only be 'thesis'")
         try:
-            out.append((name, int(n) if n else None))
+            out.append((name, int(n) if n else None, variant == "thesis"))
         except ValueError:
             raise InputError(f"--filters: {item!r}: the count after ':' must be an integer") from None
     return out
 
 
-def _params(name: str, n: int | None):
+def _params(name: str, n: int | None, thesis: bool = False):
     from app.tracking.tracker import TrackerParams
 
     kw = {"filter": name}
+    if thesis:
+        kw.update(refine=False, ss_reseed=0.0)
     if n is not None:
         kw["particles" if name.startswith("pf") else "samples"] = int(n)
     return TrackerParams(**kw)
@@ -74,12 +82,13 @@ def run(recordings, voxel_sizes=(0.02, 0.05, 0.10), configs=CONFIGS, frames: int
             if progress:
                 progress(f"  {Path(rec).name} at {100 * vs:g} cm: {len(vox)} frames of voxels "
                          f"({time.perf_counter() - t0:.0f} s)")
-            for name, n in configs:
+            for config in configs:
+                name, n, thesis = (tuple(config) + (False,))[:3]
                 timings: dict = {}
-                res = track_frames(vox, grid, _params(name, n), tree, timings)
+                res = track_frames(vox, grid, _params(name, n, thesis), tree, timings)
                 s = score_tracking(truth, res, frames=[f for f in sorted(truth) if f in res]).summary()
                 ms = np.asarray(timings.get("cca", [0])) + np.asarray(timings.get("tracking", [0]))
-                row = {"recording": Path(rec).name, "voxel_size": vs, "filter": name, "n": n,
+                row = {"recording": Path(rec).name, "voxel_size": vs, "filter": name + ("*" if thesis else ""), "n": n,
                        "ms_p50": round(float(np.median(ms)), 2), "ms_p95": round(float(np.percentile(ms, 95)), 2),
                        "cca_ms_p50": round(float(np.median(timings.get("cca", [0]))), 2),
                        "tracking_ms_p50": round(float(np.median(timings.get("tracking", [0]))), 2), **s}
