@@ -220,9 +220,9 @@ class YuvBackground:
     The paper learns a full covariance per pixel from empty-room frames. A recording
     holds one empty-room image, so here the mean is per pixel (that image, at the mask
     size) and the covariance is one per camera, estimated robustly from the residuals
-    of the first frames (:meth:`fit_noise`: pixels beyond the 99 % chi-square quantile,
-    people, are left out, twice), with a floor of ``min_sigma`` grey levels per channel
-    (compression and flicker).
+    of the first frames (:meth:`fit_noise`: from the median absolute deviation, then
+    without the pixels beyond the 99 % chi-square quantile, people and their shadows),
+    with a floor of ``min_sigma`` grey levels per channel (compression and flicker).
     """
 
     def __init__(self, background: np.ndarray, shadow: float = 0.1, min_sigma: float = 2.0):
@@ -238,17 +238,19 @@ class YuvBackground:
 
     def fit_noise(self, images, quantile: float = 11.34) -> None:
         """Estimate the per-camera colour covariance from frames (BGR, at the model's
-        size) against the mean; pixels with ``d_M`` above ``quantile`` (the 99 %
-        chi-square(3) quantile) are left out, twice."""
+        size) against the mean: the median absolute deviation per channel first, then
+        three times the covariance of the pixels with ``d_M`` at most ``quantile`` (the
+        99 % chi-square(3) quantile)."""
         res = np.concatenate([(cv2.cvtColor(im, cv2.COLOR_BGR2YUV).astype(np.float32) - self.mean).reshape(-1, 3)
                               for im in images])
-        keep = np.ones(len(res), dtype=bool)
+        # start from the median absolute deviation per channel (people and their shadows
+        # may cover a good part of the frames), then the covariance of what it keeps
+        mad = 1.4826 * np.median(np.abs(res), axis=0)
+        self.set_covariance(np.diag(np.maximum(mad, 0.5) ** 2))
         for _ in range(3):
-            r = res[keep]
-            cov = (r.T @ r) / max(1, len(r) - 1)
-            self.set_covariance(cov)
             d = np.einsum("ni,ij,nj->n", res, self.inv, res)
-            keep = d <= quantile
+            r = res[d <= quantile]
+            self.set_covariance((r.T @ r) / max(1, len(r) - 1) / 0.92)   # 0.92: the variance a 99 % cut keeps
 
     def distance(self, image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Squared Mahalanobis distance (H, W) float32 of a BGR frame at the model's size."""
