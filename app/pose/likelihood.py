@@ -59,7 +59,8 @@ def _cell(v, lo, inv, n):
 @njit(cache=True, nogil=True)
 def score_particles(states, height, pts, seg, part, surf, active, n_parts,
                     occ, prox, origin, vsize, room_lo, room_hi,
-                    do_stamp, do_owner, do_multi, do_origin, do_size, token0, out):
+                    do_stamp, do_owner, do_multi, do_origin, do_size, token0, out,
+                    seg_parent, seg_offset, dof_segment, dof_axis):
     """Scores ``out (P, Q, 5)`` = (outside, double, occupied, surface-miss, surface count)
     *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``.
 
@@ -68,7 +69,7 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
     whether another part came too); pass 2 counts each part's points in shared cells.
     The LUT is grouped by part (one segment each), so a part's rotation and origin
     stay in registers and its counts in locals."""
-    S = SEG_PARENT_G.shape[0]
+    S = seg_parent.shape[0]
     R = np.empty((S, 3, 3))
     O = np.empty((S, 3))
     M = pts.shape[0]
@@ -88,7 +89,7 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
         starts[q + 1] += starts[q]
     for k in range(states.shape[0]):
         token = token0 + k
-        fk_segments(states[k], height, SEG_PARENT_G, SEG_OFFSET_G, DOF_SEGMENT_G, DOF_AXIS_G, R, O)
+        fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O)
         shared = False
         for q in range(n_parts):
             for c in range(5):
@@ -151,13 +152,6 @@ def score_particles(states, height, pts, seg, part, surf, active, n_parts,
                 out[k, part[m], 1] += 1.0
 
 
-# the kinematic tables as numba globals (compile-time constants)
-SEG_PARENT_G = SEG_PARENT
-SEG_OFFSET_G = SEG_OFFSET
-DOF_SEGMENT_G = DOF_SEGMENT
-DOF_AXIS_G = DOF_AXIS
-
-
 def normalise(counts: np.ndarray, flesh: Flesh) -> np.ndarray:
     """Per-part scores ``(P, Q, 4)`` = (rho_Out, rho_DO, rho_Empty, rho_Surf) from counts."""
     size = flesh.part_size[None, :]
@@ -217,7 +211,8 @@ class Scorer:
         stamp, owner, multi = self._do
         score_particles(states, f.height, f.points, f.segment, f.part, f.surface, act, Q,
                         obs.occ, obs.prox, obs.origin, obs.voxel_size, obs.room_lo, obs.room_hi,
-                        stamp, owner, multi, self._do_origin, f.spacing, self._token, out)
+                        stamp, owner, multi, self._do_origin, f.spacing, self._token, out,
+                        SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS)
         self._token += len(states)
         self.evaluations += len(states)
         return out
