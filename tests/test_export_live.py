@@ -105,7 +105,11 @@ def test_a_killed_run_leaves_only_partial_files_and_readable_prefixes(tiny_recor
         proc.wait(10)
         for pid in pids[1:]:
             for _ in range(50):
-                if not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split(")")[-1].split()[0] == "Z":
+                try:
+                    with open(f"/proc/{pid}/stat") as fh:
+                        if fh.read().split(")")[-1].split()[0] == "Z":
+                            break
+                except OSError:
                     break
                 time.sleep(0.1)
     finally:

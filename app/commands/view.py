@@ -17,12 +17,14 @@ def add_arguments(p) -> None:
     p.add_argument("--no-voxels", dest="voxels", action="store_false", help="leave voxels.bin out (lighter page)")
     p.add_argument("--max-points", type=int, default=8000, help="voxels drawn at most per frame (default 8000)")
     p.add_argument("--trail", type=int, default=25, help="past positions drawn behind each track (default 25)")
+    p.add_argument("--images", metavar="CAM", help="also show this camera's recorded frames (bottom left)")
+    p.add_argument("--image-width", type=int, default=320, help="width of the shown frames in pixels (default 320)")
     p.add_argument("--seconds", type=float, help="stop serving after this long (default: until Ctrl-C)")
 
 
 def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = None, paused: bool = False,
           voxels: bool = True, max_points: int = 8000, trail: int = 25, seconds: float | None = None,
-          allow_empty: bool = False, last: bool = False) -> int:
+          allow_empty: bool = False, last: bool = False, images: str | None = None, image_width: int = 320) -> int:
     """Serve the replay of ``results`` until Ctrl-C / SIGTERM (or ``seconds``). ``last``:
     open paused on the last frame; ``allow_empty``: a run with nothing to replay shows the room."""
     from app.errors import InputError
@@ -32,7 +34,10 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
 
     if max_points <= 0:
         raise InputError(f"--max-points must be positive, got {max_points}")
-    data = load_run(results, voxels=voxels, max_points=max_points, allow_empty=allow_empty)
+    if image_width <= 0:
+        raise InputError(f"--image-width must be positive, got {image_width}")
+    data = load_run(results, voxels=voxels, max_points=max_points, allow_empty=allow_empty, images=images,
+                    image_width=image_width)
     frames = data.frames
     if frames and last:
         frame = frames[-1]
@@ -55,8 +60,10 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
     try:
         for cmd in commands:
             server.send(cmd)
-        what = (f"{len(frames)} frames {frames[0]}..{frames[-1]} at {data.fps:g} fps; {len(data.voxels)} with voxels, "
-                f"{len(data.poses)} with poses, {len(data.tracks)} with tracks") if frames else "nothing recorded"
+        what = "nothing recorded"
+        if frames:
+            what = (f"{len(frames)} frames {frames[0]}..{frames[-1]} at {data.fps:g} fps; {len(data.voxels)} with "
+                    f"voxels, {len(data.poses)} with poses, {len(data.tracks)} with tracks, {len(data.images)} with images")
         print(f"view: open {server.url}  ({what}; Ctrl-C to stop)", file=sys.stderr, flush=True)
         done.wait(seconds)
     finally:
@@ -68,7 +75,7 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
 
 def main(args) -> int:
     return serve(args.results, args.bind, args.port, args.frame, args.paused, args.voxels, args.max_points,
-                 args.trail, args.seconds)
+                 args.trail, args.seconds, images=args.images, image_width=args.image_width)
 
 
 def linger(layout, out) -> int:

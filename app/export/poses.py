@@ -144,7 +144,8 @@ def results_fps(results) -> float:
             fps = (read_yaml(calib, "calibration") or {}).get("fps")
             if isinstance(fps, (int, float)) and fps > 0:
                 return float(fps)
-    raise InputError(f"{results}: no frame rate found (layout.yaml run.fps, stats.json or the recording's calibration); "
+    raise InputError(f"{results}: no frame rate found (layout.yaml run.fps, stats.json or the recording's "
+                     "calibration); "
                      "give --fps")
 
 

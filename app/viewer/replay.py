@@ -2,8 +2,9 @@
 
 The results folder's files (``tracks.jsonl``, ``poses.jsonl``, ``voxels.bin`` when the
 recorder kept it, the recording's calibration for the room and the cameras) become one
-group of objects per frame (voxels, skeletons, trails) under ``ROOT/replay/f<frame>``
-and one ellipsoid with its id label per track, and a three.js animation clip that shows
+group of objects per frame (voxels, skeletons, trails) under ``ROOT/replay/f<frame>``,
+one ellipsoid with its id label per track, optionally one camera's recorded frame per
+frame in a corner of the view, and a three.js animation clip that shows
 each frame's group at its time and moves each track's ellipsoid. meshcat's page plays
 the clip itself: its Animations panel has play, pause, reset and a time slider; the
 controls added here are a frame slider and one-frame steps back and forward. Pure: files
@@ -21,13 +22,15 @@ from app.errors import InputError
 from app.files import read_jsonl, read_yaml
 from app.messages import JOINTS
 from app.viewer import three
-from app.viewer.geometry import ellipsoid_rings, limb_segments, point_size, rgb_floats, subsample, track_colour
-from app.viewer.scene import INACTIVE_COLOUR, JOINT_PIXELS, LABEL_HEIGHT, ROOT, Scene
+from app.viewer.geometry import (ellipsoid_rings, limb_segments, point_size, rgb_floats, subsample, track_colour,
+                                 translation)
+from app.viewer.scene import CAMERA, FOV_DEG, INACTIVE_COLOUR, JOINT_PIXELS, LABEL_HEIGHT, ROOT, Scene
 
 __all__ = ["RunData", "load_run", "replay_commands", "frame_path", "REPLAY"]
 
 REPLAY = f"{ROOT}/replay"
 TRACKS = f"{ROOT}/replay_tracks"
+IMAGES = f"{CAMERA}/smartroom_images"     # the recording's frames, in a corner of the view
 
 
 def frame_path(frame: int) -> str:
@@ -49,6 +52,8 @@ class RunData:
     poses: dict = field(default_factory=dict)      # frame -> (tracks (N,), joints (N, 15, 3), active (N, 15))
     voxels: dict = field(default_factory=dict)     # frame -> (centres (n, 3), colours (n, 3) uint8, size)
     grid: tuple | None = None                      # (origin, dims, voxel_size) of the first voxel frame
+    images: dict = field(default_factory=dict)     # frame -> JPEG of the chosen camera (``images=CAM``)
+    image_aspect: float = 4 / 3
 
     @property
     def frames(self) -> list[int]:
@@ -64,8 +69,10 @@ def _calibration(folder: Path, run: dict):
     return None
 
 
-def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: bool = False) -> RunData:
-    """Read a results folder (``max_points``: voxels kept per frame, surface first)."""
+def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: bool = False,
+             images: str | None = None, image_width: int = 320) -> RunData:
+    """Read a results folder (``max_points``: voxels kept per frame, surface first;
+    ``images``: a camera whose recorded frames are shown too, ``image_width`` pixels wide)."""
     folder = Path(results)
     if not folder.is_dir():
         raise InputError(f"{folder}: results folder not found")
@@ -116,9 +123,36 @@ def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: 
                 centres = centres[keep]
                 cols = cols[keep] if cols is not None else None
             out.voxels[int(msg.frame)] = (centres, cols, float(msg.voxel_size), n)
+    if images:
+        _load_images(out, run, images, image_width)
     if not out.frames and not allow_empty:
         raise InputError(f"{folder}: nothing to replay (no tracks.jsonl, poses.jsonl or voxels.bin)")
     return out
+
+
+def _load_images(out: RunData, run: dict, camera: str, width: int) -> None:
+    """The recording's frames of ``camera`` for the run's frames, scaled and JPEG-encoded."""
+    import cv2
+
+    from app.recording import Recording
+    if not run.get("recording"):
+        raise InputError(f"{out.folder / 'layout.yaml'}: the run names no recording, so no frames to show")
+    rec = Recording(run["recording"])
+    if camera not in rec.cameras:
+        raise InputError(f"--images {camera}: the recording has cameras {', '.join(rec.cameras)}")
+    frames = out.frames
+    if not frames:
+        return
+    for i, views in rec.frames([camera], start=frames[0], stop=frames[-1] + 1):
+        img = views.get(camera)
+        if img is None:
+            continue
+        h, w = img.shape[:2]
+        small = cv2.resize(img, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 75])
+        if ok:
+            out.images[i] = buf.tobytes()
+            out.image_aspect = w / h
 
 
 def _room(data: RunData):
@@ -202,7 +236,7 @@ def replay_commands(data: RunData, trail: int = 25, ellipsoid=(0.3, 0.3, 0.9), s
         cmds.append(three.set_object(f"{path}/label", three.sprite(
             png, LABEL_HEIGHT * 1.2, aspect, [0.0, 0.0, scene.semi_axes[2] + 0.15])))
         t0 = seen[0][1]
-        cmds.append(three.set_transform(path, np.block([[np.eye(3), t0[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])))
+        cmds.append(three.set_transform(path, translation(t0)))
         frames_seen = [f for f, _ in seen]
         anim.append(three.track(f"t{tid}", "position", "vector3", [f - first for f in frames_seen],
                                 [[float(v) for v in p] for _, p in seen]))
@@ -218,9 +252,42 @@ def replay_commands(data: RunData, trail: int = 25, ellipsoid=(0.3, 0.3, 0.9), s
         anim.append(three.track(f"t{tid}", "visible", "boolean", vis_t, vis_v))
     name = data.folder.resolve().name
     cmds += scene.status(f"replay {name} | frames {first}-{last} | {fps:g} fps", (1.0, 1.0, 1.0))
-    cmds.append(three.set_animation(ROOT, anim, fps, play=True))
+    more = []
+    if data.images:
+        image_cmds, image_anim = _images(data, first, last, first if start is None else start, scene.aspect)
+        cmds += image_cmds
+        more.append((IMAGES, image_anim))
+    cmds.append(three.set_animation(ROOT, anim, fps, play=True, more=more))
     cmds += _controls(first, last, fps, first if start is None else start, paused or start is not None)
     return scene, cmds
+
+
+def _images(data: RunData, first: int, last: int, start: int, aspect: float):
+    """The camera's frames at the bottom left of the view (children of meshcat's camera,
+    like the status line), one shown at a time by the animation."""
+    height = 0.42                                  # of the 1.53 units the view is high, one unit ahead
+    top = np.tan(np.radians(FOV_DEG) / 2.0)
+    width = height * data.image_aspect
+    at = [-top * aspect + 0.03 + width / 2, -top + 0.03 + height / 2, -1.0]
+    cmds, anim = [], []
+    for f, jpeg in sorted(data.images.items()):
+        path = f"{IMAGES}/{image_name(f)}"
+        # an object without an image first: the group exists at once (an image loads later),
+        # so the animation finds it by name
+        cmds.append(three.set_object(f"{path}/anchor", three.line_segments(np.zeros((0, 2, 3)))))
+        cmds.append(three.set_object(f"{path}/image", three.sprite(jpeg, height, data.image_aspect, at, 19,
+                                                                   attenuate=True, mime="image/jpeg")))
+        cmds.append(three.set_property(path, "visible", f == start))
+        i = f - first
+        times, values = ([0, i, i + 1], [False, True, False]) if i > 0 else ([0, 1], [True, False])
+        if f == last:
+            times, values = times[:-1], values[:-1]
+        anim.append(three.track(image_name(f), "visible", "boolean", times, values))
+    return cmds, anim
+
+
+def image_name(frame: int) -> str:
+    return f"i{frame:06d}"
 
 
 def _controls(first: int, last: int, fps: float, start: int, paused: bool) -> list[dict]:

@@ -48,11 +48,15 @@ def delete(path: str) -> dict:
     return {"type": "delete", "path": path}
 
 
-def set_animation(path: str, tracks: list[dict], fps: float, play: bool = True, repetitions: int = 1) -> dict:
+def set_animation(path: str, tracks: list[dict], fps: float, play: bool = True, repetitions: int = 1,
+                  more=()) -> dict:
     """A three.js AnimationClip on the object at ``path`` (meshcat's Animations panel: play,
-    pause, reset, a time slider). ``tracks``: :func:`track` dicts, key times in frames."""
+    pause, reset, a time slider). ``tracks``: :func:`track` dicts, key times in frames;
+    ``more``: further ``(path, tracks)`` played with it."""
+    clips = [{"path": p, "clip": {"fps": float(fps), "name": "default", "tracks": t}}
+             for p, t in [(path, tracks), *more]]
     return {"type": "set_animation", "path": "", "options": {"play": bool(play), "repetitions": int(repetitions)},
-            "animations": [{"path": path, "clip": {"fps": float(fps), "name": "default", "tracks": tracks}}]}
+            "animations": clips}
 
 
 def track(target: str, prop: str, kind: str, times, values) -> dict:
@@ -175,12 +179,13 @@ def triangles(vertices, faces, colour=(1.0, 1.0, 1.0), opacity: float = 1.0) -> 
 
 
 def sprite(png: bytes, height: float, aspect: float, position=(0.0, 0.0, 0.0), render_order: int = 10,
-           attenuate: bool = False) -> dict:
+           attenuate: bool = False, mime: str = "image/png") -> dict:
     """A label: a PNG on a sprite (it always faces the viewer) drawn over everything,
-    centred at ``position`` in its node's frame. ``height``: metres when ``attenuate``,
+    centred at ``position`` in its node's frame (``mime``: another image type, e.g. a
+    camera's JPEG). ``height``: metres when ``attenuate``,
     else a fixed size on screen (about ``height / 1.53`` of the view's height with
     meshcat's 75 degree camera), whatever the distance."""
-    image = {"uuid": _uuid(), "url": "data:image/png;base64," + base64.b64encode(png).decode("ascii")}
+    image = {"uuid": _uuid(), "url": f"data:{mime};base64," + base64.b64encode(png).decode("ascii")}
     texture = {"uuid": _uuid(), "image": image["uuid"], "wrap": [1001, 1001], "repeat": [1, 1],
                "minFilter": LINEAR_FILTER, "magFilter": LINEAR_FILTER, "generateMipmaps": False}
     mat = _material("SpriteMaterial", on_top=True, map=texture["uuid"], transparent=True,
