@@ -155,12 +155,14 @@ class PipelineView:
         late = self.late_views()
         if late:
             head.append("late=" + ",".join(f"{c}:{n}" for c, n in sorted(late.items())))
-        if rtf is None:
-            head += [f"[{s}]" for s in self.statuses()]
+        statuses = self.statuses() if rtf is None else []
+        if statuses:
+            head.append("starting=" + ",".join(s.split(":", 1)[0] for s in statuses))
         parts = [" ".join(head)]
         for r in self.shown(rows):
             parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
                          f"p95={r.latency_p95:.1f} drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f} busy={r.busy:.2f}")
+        parts += statuses   # what the starting workers are doing, in words
         return " | ".join(parts)
 
     def table(self) -> str:

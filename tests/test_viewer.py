@@ -223,14 +223,20 @@ def test_scene_voxels_are_thinned_for_display():
     assert _kinds(scene.status("RTF 1.00"))[0] == ("set_object", STATUS)
 
 
+def _viewer_layout(params):
+    """A layout with a viewer (and the grabber every layout needs)."""
+    return parse_layout({"workers": [{"name": "grabber", "kind": "grabber"},
+                                     {"name": "viewer", "kind": "viewer", "params": params}]})
+
+
 def test_viewer_parameters_are_validated_by_the_layout():
-    layout = parse_layout({"workers": [{"name": "viewer", "kind": "viewer", "params": {"bind": "0.0.0.0"}}]})
+    layout = _viewer_layout({"bind": "0.0.0.0"})
     p = layout.worker("viewer").params
     assert p["bind"] == "0.0.0.0" and p["port"] == 0 and p["max_rate"] > 10 and p["max_points"] > 0
     with pytest.raises(LayoutError, match="unknown parameter 'host'"):
-        parse_layout({"workers": [{"name": "viewer", "kind": "viewer", "params": {"host": "0.0.0.0"}}]})
+        _viewer_layout({"host": "0.0.0.0"})
     with pytest.raises(LayoutError, match="must be an integer"):
-        parse_layout({"workers": [{"name": "viewer", "kind": "viewer", "params": {"port": "x"}}]})
+        _viewer_layout({"port": "x"})
 
 
 class _FakeServer:
@@ -253,7 +259,7 @@ def test_viewer_draws_the_newest_message_at_most_max_rate(monkeypatch):
     monkeypatch.setattr(viewer_module, "MeshcatServer", _FakeServer)
     clock = [100.0]
     monkeypatch.setattr(viewer_module.time, "monotonic", lambda: clock[0])
-    layout = parse_layout({"workers": [{"name": "viewer", "kind": "viewer", "params": {"max_rate": 10.0}}]})
+    layout = _viewer_layout({"max_rate": 10.0})
     v = viewer_module.Viewer(layout.worker("viewer"), layout)
     v.setup()
     sent = v.server.sent
