@@ -94,12 +94,19 @@ def test_replay_has_one_group_per_frame_and_an_animation_that_shows_each_at_its_
     assert names == {"frame", "step back", "step forward"}
 
 
+def test_replay_of_a_part_of_the_run(run_results):
+    data = load_run(run_results, span=(10, 19))
+    assert data.frames == list(range(10, 20)) and sorted(data.voxels) == list(range(10, 20))
+
+
 def test_view_command_one_line_errors(tmp_path):
     r = smartroom("view", tmp_path / "nothing")
     assert r.returncode == 2 and "results folder not found" in r.stderr and "Traceback" not in r.stderr
     (tmp_path / "empty").mkdir()
     r = smartroom("view", tmp_path / "empty")
     assert r.returncode == 2 and "nothing to replay" in r.stderr
+    r = smartroom("view", tmp_path / "empty", "--range", "9:2")
+    assert r.returncode == 2 and "--range must be FIRST:LAST" in r.stderr
 
 
 def _drain(stream, lines):

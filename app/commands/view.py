@@ -14,6 +14,8 @@ def add_arguments(p) -> None:
     p.add_argument("--port", type=int, default=0, help="port of the page (default: the first free from 7000)")
     p.add_argument("--frame", type=int, metavar="N", help="open paused on frame N (default: play from the start)")
     p.add_argument("--paused", action="store_true", help="open paused on the first frame")
+    p.add_argument("--range", metavar="A:B", help="only frames A to B (the page holds every frame it plays: "
+                                                 "replay a long run a part at a time)")
     p.add_argument("--no-voxels", dest="voxels", action="store_false", help="leave voxels.bin out (lighter page)")
     p.add_argument("--max-points", type=int, default=8000, help="voxels drawn at most per frame (default 8000)")
     p.add_argument("--trail", type=int, default=25, help="past positions drawn behind each track (default 25)")
@@ -24,7 +26,8 @@ def add_arguments(p) -> None:
 
 def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = None, paused: bool = False,
           voxels: bool = True, max_points: int = 8000, trail: int = 25, seconds: float | None = None,
-          allow_empty: bool = False, last: bool = False, images: str | None = None, image_width: int = 320) -> int:
+          allow_empty: bool = False, last: bool = False, images: str | None = None, image_width: int = 320,
+          span: tuple | None = None) -> int:
     """Serve the replay of ``results`` until Ctrl-C / SIGTERM (or ``seconds``). ``last``:
     open paused on the last frame; ``allow_empty``: a run with nothing to replay shows the room."""
     from app.errors import InputError
@@ -37,7 +40,7 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
     if image_width <= 0:
         raise InputError(f"--image-width must be positive, got {image_width}")
     data = load_run(results, voxels=voxels, max_points=max_points, allow_empty=allow_empty, images=images,
-                    image_width=image_width)
+                    image_width=image_width, span=span)
     frames = data.frames
     if frames and last:
         frame = frames[-1]
@@ -73,9 +76,25 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
     return 0
 
 
+def parse_range(text: str | None) -> tuple | None:
+    """``A:B`` (either side may be empty) as ``(A, B)``."""
+    from app.errors import InputError
+    if text is None:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        span = (int(a) if a else -1, int(b) if b else float("inf"))
+    except ValueError:
+        span = None
+    if not sep or span is None or span[0] > span[1]:
+        raise InputError(f"--range must be FIRST:LAST frame numbers, got {text!r}")
+    return span
+
+
 def main(args) -> int:
     return serve(args.results, args.bind, args.port, args.frame, args.paused, args.voxels, args.max_points,
-                 args.trail, args.seconds, images=args.images, image_width=args.image_width)
+                 args.trail, args.seconds, images=args.images, image_width=args.image_width,
+                 span=parse_range(args.range))
 
 
 def linger(layout, out) -> int:

@@ -70,9 +70,12 @@ def _calibration(folder: Path, run: dict):
 
 
 def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: bool = False,
-             images: str | None = None, image_width: int = 320) -> RunData:
+             images: str | None = None, image_width: int = 320, span: tuple | None = None) -> RunData:
     """Read a results folder (``max_points``: voxels kept per frame, surface first;
-    ``images``: a camera whose recorded frames are shown too, ``image_width`` pixels wide)."""
+    ``images``: a camera whose recorded frames are shown too, ``image_width`` pixels wide;
+    ``span``: only frames ``first..last`` (inclusive; the page holds every frame it plays,
+    so a long run is best replayed a part at a time)."""
+    lo, hi = span if span is not None else (-1, float("inf"))
     folder = Path(results)
     if not folder.is_dir():
         raise InputError(f"{folder}: results folder not found")
@@ -92,7 +95,8 @@ def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: 
             try:
                 ids = np.array([int(t["id"]) for t in rec["tracks"]], np.int64)
                 pos = np.array([t["position"] for t in rec["tracks"]], float).reshape(-1, 3)
-                out.tracks[int(rec["frame"])] = (ids, pos)
+                if lo <= int(rec["frame"]) <= hi:
+                    out.tracks[int(rec["frame"])] = (ids, pos)
             except (KeyError, TypeError, ValueError):
                 raise InputError(f"{folder / 'tracks.jsonl'}: line {n} is not a tracks record") from None
     if (folder / "poses.jsonl").is_file():
@@ -103,12 +107,15 @@ def load_run(results, voxels: bool = True, max_points: int = 8000, allow_empty: 
                 joints = np.array([[p["joints"][j] for j in JOINTS] for p in poses], float).reshape(-1, 15, 3)
                 active = np.array([[bool((p.get("active") or {}).get(j, True)) for j in JOINTS] for p in poses],
                                   bool).reshape(-1, 15)
-                out.poses[int(rec["frame"])] = (ids, joints, active)
+                if lo <= int(rec["frame"]) <= hi:
+                    out.poses[int(rec["frame"])] = (ids, joints, active)
             except (KeyError, TypeError, ValueError):
                 raise InputError(f"{folder / 'poses.jsonl'}: line {n} is not a poses record") from None
     if voxels and (folder / "voxels.bin").is_file():
         from app.results import iter_voxels
         for msg in iter_voxels(folder / "voxels.bin"):
+            if not lo <= msg.frame <= hi:
+                continue
             if out.grid is None:
                 out.grid = (list(msg.origin), list(msg.dims), float(msg.voxel_size))
             n = 0 if msg.indices is None else len(msg.indices)
