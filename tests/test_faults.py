@@ -175,7 +175,8 @@ def test_fuzzing_every_key_crashes_nothing_and_ends_nothing(long_recording, tmp_
         session = open_session(BusConfig(listen=["tcp/127.0.0.1:0"], connect=hub))
         keys = Keys("faults")
         targets = [keys.frame("cam0"), keys.frame("cam1"), keys.frame("junk1"), keys.mask("cam0"), keys.mask("cam1"),
-                   keys.voxels(), keys.tracks(), keys.eos("grabber"), keys.eos("segmentation"),
+                   keys.voxels(), keys.stage("blobs"), keys.tracks(), keys.poses(), keys.eos("grabber"),
+                   keys.eos("segmentation"),
                    keys.stats("segmentation"), keys.ack("segmentation")]
         rng = np.random.default_rng(0)
         good = (out / "layout.yaml").read_bytes()
@@ -408,3 +409,39 @@ def test_a_live_camera_that_never_opens_is_a_clear_error(long_recording, tmp_pat
     assert r.returncode == 2, r.stderr
     line = [x for x in r.stderr.splitlines() if x.startswith("smartroom: error:")]
     assert len(line) == 1 and "no live camera delivered an image" in line[0] and "cam1" in line[0]
+
+
+def test_the_tracking_and_pose_stages_survive_kills_too(recording_20s, tmp_path):
+    """The default layout's later stages (cca, tracking, pose) and the monitor, killed and
+    terminated mid-run: restarted, the run completes, every stage's counts add up."""
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", recording_20s, "--headless", "--out", out)
+    plan = [("cca", signal.SIGKILL), ("tracking", signal.SIGTERM), ("pose", signal.SIGKILL),
+            ("monitor", signal.SIGKILL)]
+    try:
+        for name, sig in plan:
+            pid = wait_for(lambda: worker_pid(out, name) or (name == "monitor" and _any_pid(out, name)), timeout=90)
+            assert pid, f"{name} never reported"
+            time.sleep(0.5)
+            os.kill(pid, sig)
+            assert wait_for(lambda: _any_pid(out, name) not in (None, pid), timeout=30), f"{name} not restarted"
+        _, err = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    for name in ("cca", "tracking", "pose"):
+        st = s["stages"][name]
+        assert st["restarts"] == 1, name
+        assert st["frames_in"] + st["frames_missing"] == 500, (name, st)
+        assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], (name, st)
+        assert st["frames_out"] >= 490, (name, st)   # only frames in flight at a kill are lost
+    assert s["restarts"]["monitor"]["count"] == 1
+    assert not list(out.glob("*.partial"))
+
+
+def _any_pid(out, name):
+    w = ((stats_of(out) or {}).get("workers") or {}).get(name)
+    return w.get("pid") if w else None
