@@ -41,7 +41,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from app.bus import BusConfig, Keys, decode_sample, free_port, open_session
+from app.bus import BusConfig, Keys, Publisher, decode_sample, free_port, open_session
 from app.config import Layout
 from app.files import write_json
 from app.messages import EndOfStream, MessageError, Stats
@@ -201,7 +201,8 @@ class Launcher:
     # -- the run ------------------------------------------------------------------
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
-        session = open_session(self.hub_bus)
+        session = self._session = open_session(self.hub_bus)
+        self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
                 session.declare_subscriber(keys.eos(), self._on_control)]
@@ -218,6 +219,8 @@ class Launcher:
             time.sleep(0.1)   # the last final stats
             for sub in subs:
                 sub.undeclare()
+            for pub in self._eos_pubs.values():
+                pub.undeclare()
             session.close()
             if self.progress is not None:
                 self.progress.close()
@@ -291,7 +294,21 @@ class Launcher:
             self._escalate(now)
             if now - self._last_stats_write >= STATS_PERIOD_S:
                 self._write_stats(final=False)
+                self._repeat_ends()
             time.sleep(0.05)
+
+    def _repeat_ends(self) -> None:
+        """Say again, once a second, the end of stream of every worker that has ended
+        (exited 0): a downstream worker restarted after the original message went by
+        learns from it that its input has ended."""
+        for p in self.procs:
+            eos = self.eos.get(p.name)
+            if p.ended and eos is not None:
+                key = Keys(self.layout.room).eos(p.name)
+                pub = self._eos_pubs.get(key)
+                if pub is None:
+                    pub = self._eos_pubs[key] = Publisher(self._session, key, droppable=False)
+                pub.put(eos)
 
     def _escalate(self, now: float) -> None:
         """A stop that takes too long: SIGTERM once, then SIGKILL once."""

@@ -445,3 +445,26 @@ def test_the_tracking_and_pose_stages_survive_kills_too(recording_20s, tmp_path)
 def _any_pid(out, name):
     w = ((stats_of(out) or {}).get("workers") or {}).get(name)
     return w.get("pid") if w else None
+
+
+def test_a_worker_restarted_after_its_upstream_ended_still_finishes(long_recording, tmp_path):
+    """The end of stream went by while the recorder was down: the launcher says it again,
+    so the restarted recorder completes its files instead of waiting for ever."""
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--no-pace", "--layout", layout,
+                           "--out", out)
+    try:
+        pid = wait_for(lambda: worker_pid(out, "recorder"), timeout=60)
+        wait_for(lambda: ((stats_of(out) or {}).get("stages", {}).get("grabber") or {}).get("final"), timeout=60)
+        os.kill(pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert time.monotonic() - t0 < 20
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["recorder"]["restarts"] == 1
+    assert (out / "voxels.bin").is_file()

@@ -169,6 +169,7 @@ class Worker:
         self._last_state = 0.0
         self._idle = 0.0
         self._epoch = 0                      # epoch of the input being handled (outputs inherit it)
+        self._epoch_seen = False
         self._signal: int | None = None
         self._journal_fd: int | None = None
         self.ledger.journal = self._journal
@@ -214,6 +215,10 @@ class Worker:
     def produce(self) -> bool:
         """Publish the next output (sources). Return False when there is nothing more."""
         raise NotImplementedError
+
+    def new_epoch(self, epoch: int) -> None:
+        """The source restarted (a new epoch, whose frame numbers may start again): forget
+        frame numbers kept from the old one (called before the first message of the new one)."""
 
     def flush(self) -> None:
         """End of stream: process what is pending (e.g. incomplete multi-camera frames)."""
@@ -537,6 +542,11 @@ class Worker:
                 msg = self._admit(key, sample)
                 if msg is None:
                     continue
+                if msg.epoch != self._epoch:
+                    if self._epoch_seen:
+                        self.log.warning("the source restarted (epoch %d)", msg.epoch)
+                        self.new_epoch(msg.epoch)
+                    self._epoch_seen = True
                 self._epoch = msg.epoch
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.errors import InputError
-from app.messages import MessageError, Poses, Tracks, Voxels
+from app.messages import Poses, Tracks, Voxels
 from workers.base import Worker
 
 KEEP_FRAMES = 8
@@ -85,13 +85,12 @@ class Pose(Worker):
             self.grid = grid
         return self.estimator
 
-    def handle(self, key: str, msg) -> None:
-        try:
-            msg.validate()
-        except MessageError as exc:
-            self.ledger.bad_message()
-            self.log.warning("frame %d: %s; skipped", msg.frame, exc)
-            return
+    def new_epoch(self, epoch: int) -> None:
+        self.done = -1
+        self.voxels.clear()
+        self.tracks.clear()
+
+    def handle(self, key: str, msg) -> None:   # validated by the base
         if msg.frame <= self.done:
             return
         store = self.voxels if isinstance(msg, Voxels) else self.tracks

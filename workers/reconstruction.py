@@ -93,7 +93,6 @@ class Reconstruction(Worker):
         self.last_seen: dict[str, float] = {}  # camera -> its latest mask (live silence), from its first mask on
         self.newest_mask: dict[str, int] = {}  # camera -> its newest frame: a camera's masks come in order
         self.producers = self._producers()
-        self.epoch: int | None = None
         self.newest_done = -1
         self.late = {n: 0 for n in self.names}  # views given up on, per camera
         self.too_few_views = 0                   # frames dropped for fewer than min_views cameras
@@ -145,15 +144,13 @@ class Reconstruction(Worker):
             return f"mask {msg.width}x{msg.height} does not match the tables {self.mask_sizes.get(msg.camera)}"
         return None
 
+    def new_epoch(self, epoch: int) -> None:
+        if self.pending:
+            self.log.warning("%d unfinished frames of the old epoch given up", len(self.pending))
+        self.pending, self.newest_done, self.newest_mask = {}, -1, {}
+
     def handle(self, key: str, msg: Mask) -> None:
         now = time.monotonic()
-        if self.epoch is None or msg.epoch > self.epoch:
-            if self.pending:
-                self.log.warning("the source restarted (epoch %d): %d unfinished frames of the old one given up",
-                                 msg.epoch, len(self.pending))
-            self.epoch, self.pending, self.newest_done, self.newest_mask = msg.epoch, {}, -1, {}
-        elif msg.epoch < self.epoch:
-            return
         self.last_seen[msg.camera] = now
         self.newest_mask[msg.camera] = max(msg.frame, self.newest_mask.get(msg.camera, -1))
         if msg.frame <= self.newest_done:
