@@ -458,39 +458,16 @@ class Blobs(Message):
 
     def validate(self) -> None:
         """Raise :class:`MessageError` unless shapes, dtypes and labels are consistent."""
-        base = getattr(super(), "validate", None)
-        if base is not None:
-            base()
-
-        def bad(what):
-            raise MessageError(f"Blobs: {what}")
-        if not (isinstance(self.voxel_size, (int, float)) and 0 < self.voxel_size <= 1):
-            bad(f"voxel_size {self.voxel_size!r} is not in (0, 1] m")
-        if len(self.origin) != 3 or len(self.dims) != 3 or any(int(d) <= 0 or int(d) > 65535 for d in self.dims):
-            bad("origin and dims must hold 3 values, dims in 1 .. 65535")
-        idx = self.indices
-        if idx is None or idx.dtype != np.uint16 or idx.ndim != 2 or idx.shape[1] != 3:
-            bad("indices must be (N, 3) uint16")
-        n = len(idx)
-        if n and (idx.max(axis=0) >= np.asarray(self.dims)).any():
-            bad("indices outside dims")
-        if self.colours is None or self.colours.dtype != np.uint8 or self.colours.shape not in ((n, 3), (0,), (0, 3)):
-            bad(f"colours must be ({n}, 3) uint8 or empty")
-        if self.surface is None or self.surface.shape not in ((n,), (0,)) or self.surface.dtype not in (np.bool_, np.uint8):
-            bad(f"surface must be ({n},) bool or empty")
-        f = self.features
-        if f is None or f.dtype != np.float32 or f.ndim != 2 or f.shape[1] != len(self.FEATURES):
-            bad(f"features must be (K, {len(self.FEATURES)}) float32")
-        k = len(f)
-        lab = self.labels
-        if lab is None or lab.dtype != np.int32 or lab.shape != (n,):
-            bad(f"labels must be ({n},) int32")
+        super().validate()
+        n = check_voxel_fields(self)
+        if self.indices.size and self.indices.dtype != np.uint16:
+            raise MessageError("Blobs: indices must be uint16")
+        f = _array(self, "features", "<f4", (None, len(self.FEATURES)), allow_empty=True)
+        k = len(f) if f.size else 0
+        lab = _array(self, "labels", "<i4", (n,), allow_empty=n == 0)
         if n and (lab.min() < 0 or lab.max() >= k):
-            bad(f"labels outside 0 .. {k - 1}")
-        if self.person is None or self.person.dtype != np.uint8 or self.person.shape != (k,):
-            bad(f"person must be ({k},) uint8")
-        if not np.isfinite(f).all():
-            bad("features not finite")
+            raise MessageError(f"Blobs: labels outside 0 .. {k - 1}")
+        _array(self, "person", "|u1", (k,), allow_empty=k == 0)
 
     def centres(self) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3)."""

@@ -24,6 +24,7 @@ class ComponentAnalysis(Worker):
         "connectivity": 26,        # 6, 18 or 26 (§4.2.3 uses 26)
         "classifier": "default",   # JSON decision tree; "default": app/tracking/person_tree.json; "none": all persons
     }
+    CHOICES = {"connectivity": (6, 18, 26)}
 
     def setup(self) -> None:
         from app.tracking.classifier import DEFAULT_TREE, load_tree
@@ -49,20 +50,15 @@ class ComponentAnalysis(Worker):
             self.grid_key = key
         return self.cca
 
-    def handle(self, key: str, msg: Voxels) -> None:
-        idx = msg.indices
-        if idx is None or idx.ndim != 2 or idx.shape[1] != 3 or (len(idx) and (idx.max(axis=0) >= np.asarray(msg.dims)).any()):
-            self.ledger.bad_message()
-            self.log.warning("frame %d: voxel indices do not fit the grid; skipped", msg.frame)
-            return
+    def handle(self, key: str, msg: Voxels) -> None:   # validated by the base (indices inside the grid)
+        idx = msg.indices.reshape(-1, 3)
         labels, feats, person = self._analysis(msg)(idx)
         self.components.append(len(feats))
         self.persons.append(int(person.sum()))
         colours = msg.colours if msg.colours is not None else np.zeros((0, 3), np.uint8)
         surface = msg.surface if msg.surface is not None else np.zeros(0, bool)
-        same = {"epoch": msg.epoch} if hasattr(msg, "epoch") else {}
         self.publish(self.keys.blobs(), Blobs(
-            **same, frame=msg.frame, stamp=msg.stamp, t=msg.t, voxel_size=msg.voxel_size, origin=list(msg.origin),
+            epoch=msg.epoch, frame=msg.frame, stamp=msg.stamp, t=msg.t, voxel_size=msg.voxel_size, origin=list(msg.origin),
             dims=list(msg.dims), cameras=list(msg.cameras), indices=np.ascontiguousarray(idx, dtype=np.uint16),
             colours=colours, surface=surface, labels=labels, features=feats, person=person))
 

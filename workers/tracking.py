@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.errors import InputError
-from app.messages import Blobs, MessageError, Tracks
+from app.messages import Blobs, Tracks
 from workers.base import Worker
 
 
@@ -51,12 +51,6 @@ class Tracking(Worker):
     def handle(self, key: str, msg: Blobs) -> None:
         from app.tracking.scene import OccupancyIndex, SceneFrame
 
-        try:
-            msg.validate()
-        except MessageError as exc:
-            self.ledger.bad_message()
-            self.log.warning("frame %d: %s; skipped", msg.frame, exc)
-            return
         gkey = tuple(int(d) for d in msg.dims)
         if gkey != self.grid_key:
             self.occupancy = OccupancyIndex(gkey)
