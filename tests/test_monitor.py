@@ -46,8 +46,9 @@ def _monitor_lines(stdout):
 
 
 @pytest.mark.integration
-def test_paced_recording_runs_at_rtf_one(long_recording, tmp_path):
-    r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", tmp_path / "o")
+def test_paced_recording_runs_at_rtf_one(long_recording, tmp_path, spine_layout):
+    r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", tmp_path / "o",
+                  "--layout", spine_layout)
     assert r.returncode == 0, r.stderr
     lines = _monitor_lines(r.stdout)
     assert lines[-1]["verdict"] != "waiting"
