@@ -421,14 +421,18 @@ class EndOfStream(Message):
 
 @dataclass(kw_only=True)
 class Ack(Message):
-    """A stage has handled frame ``frame`` (flow control of an unpaced source)."""
+    """A stage has finished frame ``frame`` (put it out or given it up; flow control of an
+    unpaced or offline source); ``out`` is the newest frame it has put out, so the source
+    never waits for a stage after it on frames it gave up."""
 
     TYPE_ID: ClassVar[int] = 8
     worker: str = ""
+    out: int = -1
 
     def validate(self) -> None:
         super().validate()
         _name(self, "worker")
+        _int(self, "out", -1)
 
 
 @dataclass(kw_only=True)

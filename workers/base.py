@@ -257,7 +257,8 @@ class Worker:
         offline source may send the frames after it."""
         if self._ack is not None and (frame > self._acked or self._ack_epoch != self._epoch):
             self._acked, self._ack_epoch = frame, self._epoch
-            self._ack.put(Ack(frame=frame, stamp=time.time(), worker=self.name, epoch=self._epoch))
+            self._ack.put(Ack(frame=frame, stamp=time.time(), worker=self.name, epoch=self._epoch,
+                              out=max(-1, self.ledger.newest_out)))
 
     def status(self, text: str) -> None:
         """Say what the worker is doing before frames flow (compiling kernels, building a

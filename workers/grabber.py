@@ -72,7 +72,8 @@ class Grabber(Worker):
             if resume >= total:
                 self.source = None   # everything was sent before the restart
         self._frames = None
-        self._acks: dict[str, int] = {}
+        self._acks: dict[str, int] = {}   # worker -> newest frame it finished
+        self._outs: dict[str, int] = {}   # worker -> newest frame it put out
         self._ack_cond = threading.Condition()
         self.t0 = None
 
@@ -165,6 +166,19 @@ class Grabber(Worker):
                 if w.name != self.name and worker_class(w.kind).acknowledges(w, self.layout)
                 and not (self.layout.run.headless and worker_class(w.kind).DISPLAY)]
 
+    def _upstream_stages(self) -> dict[str, list[str]]:
+        """For each acknowledging worker, the acknowledging stages it takes its input from."""
+        from workers import upstream_of
+        return {n: [u for u in upstream_of(self.layout, self.layout.worker(n)) if u in self._ack_names]
+                for n in self._ack_names}
+
+    def _required(self, name: str, need: int) -> int:
+        """The frame ``name`` must have finished: ``need``, or less when a stage before it
+        has put out nothing that recent (it gave those frames up, e.g. too few cameras)."""
+        for u in self._upstream.get(name, ()):
+            need = min(need, self._outs.get(u, -1))
+        return need
+
     def _keepers_of_results(self) -> list[str]:
         """Sinks that keep results: waited for (alive) while they restart, not acknowledged."""
         from workers import worker_class
@@ -185,6 +199,7 @@ class Grabber(Worker):
             return
         with self._ack_cond:
             self._acks[msg.worker] = max(msg.frame, self._acks.get(msg.worker, -1))
+            self._outs[msg.worker] = max(msg.out, self._outs.get(msg.worker, -1))
             self._ack_cond.notify_all()
 
     def _wait_for_acks(self, index: int) -> None:
@@ -201,7 +216,9 @@ class Grabber(Worker):
             # nothing of this epoch is in flight yet (frames an earlier incarnation sent were
             # acknowledged in its epoch)
             self._acks = {n: index - 1 for n in self._ack_names}
+            self._outs = {n: index - 1 for n in self._ack_names}
             self._missing_since: dict[str, float] = {}
+            self._upstream = self._upstream_stages()
         need = index - self.params["window"]
         t0 = time.perf_counter()
         next_note = time.monotonic() + 10.0
@@ -213,6 +230,7 @@ class Grabber(Worker):
                     # through it, so the stages after it cannot acknowledge them either
                     for n in self._ack_names:
                         self._acks[n] = max(self._acks.get(n, -1), index - 1)
+                        self._outs[n] = max(self._outs.get(n, -1), index - 1)
                 self._was_alive = alive
                 now = time.monotonic()
                 for n in self._ack_names + self._keepers:
@@ -220,7 +238,7 @@ class Grabber(Worker):
                         self._missing_since.pop(n, None)
                     else:
                         self._missing_since.setdefault(n, now)
-                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < need]
+                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < self._required(n, need)]
                 waiting += [n for n in self._ack_names + self._keepers
                             if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
                 if not waiting:
