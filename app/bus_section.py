@@ -205,10 +205,9 @@ def parse_auth(value, folder: Path, where: str, error) -> AuthConfig:
     return AuthConfig(user=user, password_file=password_file, dictionary_file=dictionary_file)
 
 
-def parse_bus(value, path: str, error=InputError):
-    """The ``bus`` section of the layout file ``path`` as a :class:`app.bus.BusConfig`."""
-    from app.bus import BusConfig
-
+def parse_bus(value, path: str, error=InputError) -> dict:
+    """The ``bus`` section of the layout file ``path``, checked: the fields of an
+    :class:`app.bus.BusConfig` (the config loader builds it; this module knows no bus)."""
     value = value or {}
     known = ("listen", "connect", "multicast", "shm", "tls", "auth")
     if not isinstance(value, dict):
@@ -227,6 +226,6 @@ def parse_bus(value, path: str, error=InputError):
         endpoints[key] = list(v or [])
     listen = endpoints["listen"] or [("tls" if tls else "tcp") + "/127.0.0.1:0"]
     check_endpoints(listen, endpoints["connect"], tls, error=error, prefix=f"{path}: ")
-    return BusConfig(listen=listen, connect=endpoints["connect"],
-                     multicast=_flag(value, "multicast", False, "bus.multicast", path, error),
-                     shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth)
+    return dict(listen=listen, connect=endpoints["connect"],
+                multicast=_flag(value, "multicast", False, "bus.multicast", path, error),
+                shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth)

@@ -172,7 +172,7 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
     room = data.get("room", "smartroom")
     if not isinstance(room, str) or not room or any(c in room for c in "/*$?# "):
         raise LayoutError(f"{path}: room must be a plain word, got {room!r}")
-    bus = parse_bus(data.get("bus"), path, LayoutError)   # endpoints, TLS, user/password
+    bus = BusConfig(**parse_bus(data.get("bus"), path, LayoutError))   # endpoints, TLS, user/password
     entries = data.get("workers")
     if not isinstance(entries, list) or not entries:
         raise LayoutError(f"{path}: workers must be a non-empty list")
@@ -194,9 +194,9 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
             cls = worker_class(kind)
         except (ImportError, AttributeError, ValueError) as exc:
             raise LayoutError(f"{path}: worker {name}: cannot load kind {kind!r} ({exc})") from None
-        from workers.base import Worker
-        if not (isinstance(cls, type) and issubclass(cls, Worker)):
-            raise LayoutError(f"{path}: worker {name}: kind {kind!r} is not a worker (a subclass of workers.base.Worker)")
+        except TypeError as exc:   # not a Worker
+            raise LayoutError(f"{path}: worker {name}: kind {kind!r} {exc}") from None
+
         if name in names:
             raise LayoutError(f"{path}: worker name {name} appears more than once")
         names.add(name)

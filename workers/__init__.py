@@ -30,9 +30,15 @@ def is_kind(kind) -> bool:
 
 
 def worker_class(kind: str):
-    """The worker class of a kind (raises ``ImportError``/``AttributeError`` for a bad plugin)."""
-    module, _, cls = KINDS.get(kind, kind).partition(":")
-    return getattr(importlib.import_module(module), cls)
+    """The worker class of a kind (``ImportError``/``AttributeError`` for a plugin that is
+    not there, ``TypeError`` for one that is not a Worker)."""
+    from workers.base import Worker
+
+    module, _, name = KINDS.get(kind, kind).partition(":")
+    cls = getattr(importlib.import_module(module), name)
+    if not (isinstance(cls, type) and issubclass(cls, Worker)):
+        raise TypeError("is not a worker (a subclass of workers.base.Worker)")
+    return cls
 
 
 def _cameras(spec):
