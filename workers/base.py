@@ -35,14 +35,16 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
-from app.config import Layout, WorkerSpec
 from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
+
+if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
+    from app.config import Layout, WorkerSpec
 
 __all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
