@@ -469,3 +469,30 @@ def test_a_worker_restarted_after_its_upstream_ended_still_finishes(long_recordi
     s = stats_of(out)
     assert s["complete"] is True and s["stages"]["recorder"]["restarts"] == 1
     assert (out / "voxels.bin").is_file()
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "walk1"
+    r = smartroom("simulate", "--scene", "walk1", "--seconds", 2, "--size", "320x240", "--out", out, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_tracks_and_poses_do_not_depend_on_machine_load(walk, tmp_path):
+    """The whole default pipeline (to tracking and pose) twice on one recording, once beside
+    two CPU hogs: the same tracks.jsonl and poses.jsonl, byte for byte."""
+    files = []
+    for name, loaded in (("idle", False), ("loaded", True)):
+        hogs = _hog() if loaded else []
+        try:
+            r = smartroom("run", "--recording", walk, "--headless", "--no-pace", "--out", tmp_path / name,
+                          timeout=300)
+        finally:
+            for h in hogs:
+                h.kill()
+        assert r.returncode == 0, r.stderr
+        files.append([(tmp_path / name / f).read_bytes() for f in ("tracks.jsonl", "poses.jsonl")])
+    assert files[0] == files[1]
+    tracks = [json.loads(line) for line in files[0][0].decode().splitlines()]
+    assert len(tracks) == 50 and sum(len(t["tracks"]) for t in tracks) >= 40   # somebody was tracked
