@@ -349,9 +349,14 @@ class Launcher:
                 p.rc = p.popen.wait()
 
     # -- what happened ---------------------------------------------------------------
+    def _stream_errors(self) -> list[str]:
+        """Streams that ended early for a reason a source reported (every camera lost)."""
+        return [f"{name}: {s.figures['stream_error']}" for name, s in self.stats.items()
+                if isinstance(s.figures.get("stream_error"), str)]
+
     @property
     def complete(self) -> bool:
-        return (not self.reasons and not self.input_error
+        return (not self.reasons and not self.input_error and not self._stream_errors()
                 and all(p.ended for p in self.procs))
 
     def _make_reserve(self) -> None:
@@ -374,7 +379,7 @@ class Launcher:
             s["frames_expected"] = expected
         out["workers"] = {name: st["figures"] for name, st in stages.items()}
         if final:
-            reasons = list(self.reasons)
+            reasons = list(self.reasons) + self._stream_errors()
             if self.input_error:
                 reasons.append(self.input_error)
             for p in self.procs:

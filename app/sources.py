@@ -141,10 +141,12 @@ class LiveSource:
     live = True
 
     def __init__(self, sources: dict, calibration: Calibration, frames: int | None = None,
-                 stop: threading.Event | None = None, open_timeout: float = 10.0):
+                 stop: threading.Event | None = None, open_timeout: float = 10.0, lost_timeout: float = 30.0):
         self.calibration = calibration
         self.stop_event = stop or threading.Event()
         self.open_timeout = open_timeout
+        self.lost_timeout = lost_timeout
+        self.failure: str | None = None   # why the stream ended early (every camera gone)
         self.failed: set[str] = set()   # cameras that never delivered or stopped delivering
         self.cameras = list(sources)
         for c in self.cameras:
@@ -159,18 +161,29 @@ class LiveSource:
     def frames(self):
         """Frames until the limit, a stop, or :meth:`close`. No camera delivering within
         ``open_timeout`` is an error naming every camera; a camera that never delivers
-        while others do is flagged (``failed``) and the others go on."""
+        while others do is flagged (``failed``) and the others go on. When every camera
+        has delivered nothing for ``lost_timeout`` (each is retried meanwhile) the stream
+        ends, with the reason in ``failure``."""
         for t in self.threads.values():
             t.start()
         index, tick, period, t0 = 0, 0, 1.0 / self.fps, time.monotonic()
         delivered: set[str] = set()
+        last_image = t0
         while (not self._closed.is_set() and not self.stop_event.is_set()
                and (self.expected is None or index < self.expected)):
             self.stop_event.wait(max(0.0, t0 + tick * period - time.monotonic()))
             tick += 1
             images = {c: img for c, t in self.threads.items() if (img := t.take()) is not None}
             delivered |= set(images)
-            waited = time.monotonic() - t0
+            now = time.monotonic()
+            if images:
+                last_image = now
+            elif delivered and now - last_image > self.lost_timeout:
+                self.failure = "every live camera stopped delivering for %.0f s: %s" % (self.lost_timeout, "; ".join(
+                    f"{c} ({t.source}) {t.why or 'silent'}" for c, t in self.threads.items()))
+                log.error("%s; ending the stream", self.failure)
+                return
+            waited = now - t0
             if waited > self.open_timeout:
                 if not delivered:
                     raise InputError("no live camera delivered an image in %.0f s: %s" % (self.open_timeout, "; ".join(

@@ -496,3 +496,19 @@ def test_tracks_and_poses_do_not_depend_on_machine_load(walk, tmp_path):
     assert files[0] == files[1]
     tracks = [json.loads(line) for line in files[0][0].decode().splitlines()]
     assert len(tracks) == 50 and sum(len(t["tracks"]) for t in tracks) >= 40   # somebody was tracked
+
+
+def test_live_cameras_that_all_stop_end_the_stream_with_a_reason(tmp_path):
+    """Both live cameras stop delivering: the stream ends, the files are completed, and the
+    run says why it is not complete (exit 1)."""
+    a = write_tiny_recording(tmp_path / "a", frames=20)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    r = smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}", "--live", f"cam1={a / 'videos' / 'cam1.avi'}",
+                  "--calibration", a / "calibration.yaml", "--headless", "--layout", layout,
+                  "--set", "grabber.lost_timeout=1.5", "--out", out, timeout=90)
+    assert r.returncode == 1, r.stderr
+    s = stats_of(out)
+    assert s["complete"] is False and any("every live camera stopped delivering" in x for x in s["reasons"])
+    assert (out / "voxels.bin").is_file() and not list(out.glob("*.partial"))
+    assert len(voxel_frames(out / "voxels.bin")) >= 10

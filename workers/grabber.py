@@ -37,11 +37,12 @@ class Grabber(Worker):
         "ready_timeout": 60.0,   # seconds to wait for the other workers before starting anyway
         "window": 2,             # offline: frames in flight beyond the slowest stage's last one
         "open_timeout": 10.0,    # live: seconds for a camera to deliver its first image
+        "lost_timeout": 30.0,    # live: seconds with no camera delivering before the stream ends
         "skip_bad_frames": False,  # a recording's undecodable frames: stop with an error, or skip them
         "scale": 0,              # send frames at 1/scale (0: as small as the segmentation allows; 1: full size)
     }
     RANGES = {"start": (0, 1 << 40), "ready_timeout": (0.0, 3600.0), "window": (1, 64),
-              "open_timeout": (0.5, 600.0), "scale": (0, 16)}
+              "open_timeout": (0.5, 600.0), "lost_timeout": (0.5, 86400.0), "scale": (0, 16)}
 
     def setup(self) -> None:
         run = self.layout.run
@@ -55,7 +56,8 @@ class Grabber(Worker):
                 raise InputError("live cameras need a calibration file (--calibration)")
             live = {c: s for c, s in run.live.items() if cams is None or c in cams}
             self.source = LiveSource(live, load_calibration(run.calibration), frames=run.frames,
-                                     stop=self.stop_event, open_timeout=self.params["open_timeout"])
+                                     stop=self.stop_event, open_timeout=self.params["open_timeout"],
+                                     lost_timeout=self.params["lost_timeout"])
             self.first = 0
         else:
             if not run.recording:
@@ -274,6 +276,8 @@ class Grabber(Worker):
             failed = getattr(source, "failed", None)
             if failed:
                 figures["cameras_failed"] = sorted(failed)
+            if getattr(source, "failure", None):
+                figures["stream_error"] = source.failure   # the stream ended, but not as it should
         if getattr(self, "lost", None):
             figures["views_lost"] = dict(self.lost)
         return figures
