@@ -23,14 +23,7 @@ class ReplayPoses(Worker):
         with open(self.params["file"], encoding="utf-8") as fh:
             self.records = [json.loads(line) for line in fh if line.strip()]
         self.next = 0
-        others = {w.name for w in self.layout.workers if w.name != self.name}
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
-                     for r in self.session.liveliness().get(self.keys.alive()) if r.ok is not None}
-            if others <= alive:
-                break
-            time.sleep(0.1)
+        self.wait_for_others(60.0)
         time.sleep(0.3)
 
     def produce(self):

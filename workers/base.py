@@ -262,6 +262,18 @@ class Worker:
             self._ack.put(Ack(frame=frame, stamp=time.time(), worker=self.name, epoch=self._epoch,
                               out=max(-1, self.ledger.newest_out)))
 
+    def wait_for_others(self, timeout: float) -> set[str]:
+        """Wait until every other worker of the layout that runs here is on the bus (a
+        source, so that no stage misses the start of its stream); the ones still missing."""
+        from workers import worker_class
+
+        others = {w.name for w in self.layout.workers if w.name != self.name
+                  and not (self.layout.run.headless and worker_class(w.kind).DISPLAY)}
+        deadline = time.monotonic() + timeout
+        while not others <= self.alive and time.monotonic() < deadline and not self.stopping:
+            time.sleep(0.02)
+        return others - self.alive
+
     def status(self, text: str) -> None:
         """Say what the worker is doing before frames flow (compiling kernels, building a
         background): shown by the monitor and the launcher's progress line."""

@@ -122,16 +122,10 @@ class Grabber(Worker):
 
     # -- frames ------------------------------------------------------------------------
     def _wait_until_ready(self) -> None:
-        others = {w.name for w in self.layout.workers if w.name != self.name}
-        if self.layout.run.headless:
-            from workers import worker_class
-            others = {n for n in others if not worker_class(self.layout.worker(n).kind).DISPLAY}
-        deadline = time.monotonic() + self.params["ready_timeout"]
-        while not others <= self.alive and time.monotonic() < deadline and not self.stopping:
-            time.sleep(0.02)
-        if not others <= self.alive:
-            self.log.warning("starting without %s (not alive after %.0f s)",
-                             ", ".join(sorted(others - self.alive)), self.params["ready_timeout"])
+        missing = self.wait_for_others(self.params["ready_timeout"])
+        if missing:
+            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)),
+                             self.params["ready_timeout"])
 
     def produce(self) -> bool:
         if self.source is None:
