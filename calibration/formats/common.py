@@ -28,6 +28,19 @@ class Imported:
     notes: list[str] = field(default_factory=list)
 
 
+def read_xml(path):
+    """The root element of an XML calibration file, or a one-line error naming it."""
+    import xml.etree.ElementTree as ET
+
+    p = Path(path)
+    if not p.is_file():
+        raise FormatError(f"{p}: file not found")
+    try:
+        return ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise FormatError(f"{p}: not valid XML ({exc})") from None
+
+
 def fail(path, where: str, problem: str) -> FormatError:
     """``FILE: WHERE: PROBLEM`` as a :class:`FormatError` (to raise)."""
     return FormatError(f"{path}: {where}: {problem}" if where else f"{path}: {problem}")

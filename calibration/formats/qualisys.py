@@ -27,12 +27,11 @@ Convention, from Pose2Sim's ``read_qca`` / ``calib_qca_fun`` (perfanalytics/pose
 """
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-from calibration.formats.common import FormatError, Imported, fail, make_camera, numbers
+from calibration.formats.common import FormatError, Imported, fail, make_camera, numbers, read_xml
 from calibration.transform import turned
 
 __all__ = ["read_qualisys"]
@@ -49,12 +48,7 @@ def _attr(el, key, path, where) -> float:
 
 def read_qualisys(path, binning: int = 1, view_rotation: str = "apply") -> Imported:
     p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: file not found")
-    try:
-        root = ET.parse(p).getroot()
-    except ET.ParseError as exc:
-        raise FormatError(f"{p}: not valid XML ({exc})") from None
+    root = read_xml(p)
     cams = root.findall(".//cameras/camera")
     if not cams:
         raise FormatError(f"{p}: no cameras/camera element (not a QTM calibration)")

@@ -18,25 +18,19 @@ and other readers of the format (OpenCap tools, Matlab converters):
 """
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibration.formats.common import FormatError, Imported, fail, make_camera, numbers
+from calibration.formats.common import FormatError, Imported, fail, make_camera, numbers, read_xml
 
 __all__ = ["read_vicon"]
 
 
 def read_vicon(path) -> Imported:
     p = Path(path)
-    if not p.is_file():
-        raise FormatError(f"{p}: file not found")
-    try:
-        root = ET.parse(p).getroot()
-    except ET.ParseError as exc:
-        raise FormatError(f"{p}: not valid XML ({exc})") from None
+    root = read_xml(p)
     cams = root.findall(".//Camera")
     if not cams:
         raise FormatError(f"{p}: no Camera element (not a Vicon .xcp file)")
