@@ -15,6 +15,7 @@ from pathlib import Path
 from app.errors import InputError
 from app.files import partial_path
 from app.messages import MessageError, Voxels, decode, encode, peek_frame
+from app.stats import FrameSet
 
 __all__ = ["VoxelWriter", "iter_voxels"]
 
@@ -28,7 +29,7 @@ class VoxelWriter:
     def __init__(self, path: Path):
         self.path = Path(path)
         self.tmp = partial_path(self.path)
-        self.frames: set[int] = set()
+        self.frames = FrameSet()
         keep = 0
         if self.tmp.exists():
             with open(self.tmp, "rb") as fh:

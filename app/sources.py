@@ -141,7 +141,8 @@ class LiveSource:
     live = True
 
     def __init__(self, sources: dict, calibration: Calibration, frames: int | None = None,
-                 stop: threading.Event | None = None, open_timeout: float = 10.0, lost_timeout: float = 30.0):
+                 stop: threading.Event | None = None, open_timeout: float = 10.0, lost_timeout: float = 30.0,
+                 start: int = 0):
         self.calibration = calibration
         self.stop_event = stop or threading.Event()
         self.open_timeout = open_timeout
@@ -155,7 +156,7 @@ class LiveSource:
         self.expected = frames
         self.threads = {c: _CameraThread(c, sources[c], calibration.camera(c).width, calibration.camera(c).height,
                                          self.fps) for c in self.cameras}
-        self.start = 0
+        self.start = start   # a restarted grabber carries the frame numbers on
         self._closed = threading.Event()
 
     def frames(self):
@@ -166,11 +167,11 @@ class LiveSource:
         ends, with the reason in ``failure``."""
         for t in self.threads.values():
             t.start()
-        index, tick, period, t0 = 0, 0, 1.0 / self.fps, time.monotonic()
+        index, tick, period, t0 = self.start, 0, 1.0 / self.fps, time.monotonic()
         delivered: set[str] = set()
         last_image = t0
         while (not self._closed.is_set() and not self.stop_event.is_set()
-               and (self.expected is None or index < self.expected)):
+               and (self.expected is None or index - self.start < self.expected)):
             self.stop_event.wait(max(0.0, t0 + tick * period - time.monotonic()))
             tick += 1
             images = {c: img for c, t in self.threads.items() if (img := t.take()) is not None}

@@ -22,7 +22,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["StageLedger", "summarise", "percentiles"]
+__all__ = ["StageLedger", "FrameSet", "summarise", "percentiles"]
 
 WINDOW_S = 2.0
 RECENT = 5000   # outputs (~3 min at 25 fps) behind the running latency percentiles
@@ -38,7 +38,7 @@ def percentiles(values_ms) -> dict:
             "p95": round(float(p95), 3), "max": round(float(a.max()), 3)}
 
 
-class _FrameSet:
+class FrameSet:
     """A growable bitmap of frame indices (cheap for hours of frames)."""
 
     def __init__(self):
@@ -59,6 +59,9 @@ class _FrameSet:
     def __contains__(self, i: int) -> bool:
         return 0 <= i < len(self.bits) and bool(self.bits[i])
 
+    def __len__(self) -> int:
+        return self.count
+
     def count_below(self, i: int) -> int:
         return self.bits[:max(0, i)].count(1)
 
@@ -71,7 +74,7 @@ class _FrameSet:
         return edges.reshape(-1, 2).tolist()
 
     @classmethod
-    def from_ranges(cls, ranges) -> "_FrameSet":
+    def from_ranges(cls, ranges) -> "FrameSet":
         s = cls()
         for start, stop in ranges or []:
             if 0 <= start < stop <= (1 << 40):
@@ -89,8 +92,8 @@ class StageLedger:
         self.clock = clock
         #: per frame ``[capture stamp, first received, first output]`` when tracing (benchmarks)
         self.trace: dict[int, list] | None = {} if trace else None
-        self.seen = _FrameSet()
-        self.done = _FrameSet()
+        self.seen = FrameSet()
+        self.done = FrameSet()
         self.items_in = 0
         self.items_out = 0
         self.items_dropped = 0
@@ -169,8 +172,8 @@ class StageLedger:
     def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
         """Take over an earlier incarnation's :meth:`state` and the frames its journal
         recorded after that state was saved."""
-        self.seen = _FrameSet.from_ranges(state.get("seen"))
-        self.done = _FrameSet.from_ranges(state.get("done"))
+        self.seen = FrameSet.from_ranges(state.get("seen"))
+        self.done = FrameSet.from_ranges(state.get("done"))
         for name in ("items_in", "items_out", "items_dropped", "bad_messages", "last_frame", "newest_out"):
             v = state.get(name)
             if isinstance(v, int):

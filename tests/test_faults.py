@@ -512,3 +512,28 @@ def test_live_cameras_that_all_stop_end_the_stream_with_a_reason(tmp_path):
     assert s["complete"] is False and any("every live camera stopped delivering" in x for x in s["reasons"])
     assert (out / "voxels.bin").is_file() and not list(out.glob("*.partial"))
     assert len(voxel_frames(out / "voxels.bin")) >= 10
+
+
+def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
+    """Live cameras: the grabber killed mid-run comes back in a new epoch with the next
+    frame number, so the stages follow it at once and no result holds a frame twice."""
+    a = write_tiny_recording(tmp_path / "a", frames=400)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml")
+    proc = start_smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}",
+                           "--live", f"cam1={a / 'videos' / 'cam1.avi'}", "--calibration", a / "calibration.yaml",
+                           "--headless", "--layout", layout, "--frames", 150, "--out", out)
+    try:
+        pid = wait_for(lambda: worker_pid(out, "grabber"), timeout=60)
+        time.sleep(1.5)
+        os.kill(pid, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["grabber"]["restarts"] == 1
+    assert s["stages"]["grabber"]["frames_out"] == 150
+    frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
+    assert frames == sorted(set(frames)) and frames[-1] == 149 and len(frames) >= 140

@@ -55,9 +55,10 @@ class Grabber(Worker):
             if not run.calibration:
                 raise InputError("live cameras need a calibration file (--calibration)")
             live = {c: s for c, s in run.live.items() if cams is None or c in cams}
-            self.source = LiveSource(live, load_calibration(run.calibration), frames=run.frames,
+            left = None if run.frames is None else max(0, run.frames - (self._resume or 0))
+            self.source = LiveSource(live, load_calibration(run.calibration), frames=left,
                                      stop=self.stop_event, open_timeout=self.params["open_timeout"],
-                                     lost_timeout=self.params["lost_timeout"])
+                                     lost_timeout=self.params["lost_timeout"], start=self._resume or 0)
             self.first = 0
         else:
             if not run.recording:
@@ -112,8 +113,9 @@ class Grabber(Worker):
 
     def restore_state(self, state: dict) -> None:
         """A restarted grabber carries on after the last frame it sent (its ledger, with
-        the journal, knows it exactly); live cameras simply go on."""
-        if not self.layout.run.live and self.ledger.newest_out >= 0:
+        the journal, knows it exactly): a recording from there, live cameras with the
+        next frame number, so results never hold one frame number twice."""
+        if self.ledger.newest_out >= 0:
             self._resume = self.ledger.newest_out + 1
 
     @property

@@ -25,6 +25,7 @@ from app.errors import InputError
 from app.files import partial_path
 from app.messages import JOINTS, Poses, Tracks, Voxels
 from app.results import VoxelWriter
+from app.stats import FrameSet
 from workers import worker_class
 from workers.base import Worker
 
@@ -40,7 +41,7 @@ class JsonLinesWriter:
     def __init__(self, path: Path):
         self.path = path
         self.tmp = partial_path(path)
-        self.frames: set[int] = set()
+        self.frames = FrameSet()   # one byte a frame: days of frames stay small
         self.ordered = True
         self.last_frame = -1
         keep = 0
