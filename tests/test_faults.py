@@ -536,4 +536,6 @@ def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
     assert s["complete"] is True and s["stages"]["grabber"]["restarts"] == 1
     assert s["stages"]["grabber"]["frames_out"] == 150
     frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
-    assert frames == sorted(set(frames)) and frames[-1] == 149 and len(frames) >= 140
+    assert frames == sorted(set(frames)) and frames[-1] == 149
+    # live stages may drop frames to keep up (counted); what was written is what the recorder says
+    assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 75
