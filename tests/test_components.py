@@ -26,3 +26,24 @@ def test_two_blobs_and_empty():
     assert n == 2 and labels[0] == labels[1] and labels[2] == labels[3] and labels[0] != labels[2]
     labels, n = label_voxels(np.zeros((0, 3), int), (4, 4, 4))
     assert n == 0 and labels.size == 0
+
+
+@pytest.mark.parametrize("connectivity", [6, 18, 26])
+def test_runs_match_the_union_find_on_random_voxel_sets(connectivity):
+    """The run-based labelling gives the per-voxel union-find's labels exactly (same
+    numbering by first appearance), on sorted lists, shuffled lists and lists holding a
+    voxel twice."""
+    from app.components import label_voxels_union_find
+
+    rng = np.random.default_rng(connectivity)
+    for density in (0.03, 0.15, 0.4):
+        dense = rng.random((23, 17, 29)) < density
+        idx = np.argwhere(dense).astype(np.uint16)           # sorted (x, y, z), as published
+        for case in (idx, idx[rng.permutation(len(idx))]):
+            labels, n = label_voxels(case, dense.shape, connectivity)
+            ref, n_ref = label_voxels_union_find(case, dense.shape, connectivity)
+            assert n == n_ref and np.array_equal(labels, ref)
+    twice = np.concatenate([idx[:50], idx[:50]])
+    labels, n = label_voxels(twice, dense.shape, connectivity)
+    assert np.array_equal(labels[:50], labels[50:])
+    assert n == len(np.unique(label_voxels_union_find(idx[:50], dense.shape, connectivity)[0]))

@@ -18,7 +18,7 @@ from numba import njit
 
 from app.components import Labeller
 
-__all__ = ["FEATURES", "CLASSIFIER_FEATURES", "component_features", "ComponentAnalysis", "DENSITY_KG_M3"]
+__all__ = ["FEATURES", "CLASSIFIER_FEATURES", "component_features", "features_from_sums", "ComponentAnalysis", "DENSITY_KG_M3"]
 
 FEATURES = ("weight", "z_centroid", "top", "height", "extent_major", "extent_minor", "x", "y", "voxels")
 #: Table 4.1: what the person / no-person classifier sees
@@ -50,6 +50,13 @@ def component_features(indices: np.ndarray, labels: np.ndarray, count: int, orig
     counts = np.zeros(k, dtype=np.int64)
     if k:
         _accumulate(idx, np.asarray(labels), k, mins, maxs, sums, counts)
+    return features_from_sums(mins, maxs, sums, counts, origin, voxel_size)
+
+
+def features_from_sums(mins, maxs, sums, counts, origin, voxel_size: float) -> np.ndarray:
+    """Features (K, len(FEATURES)) float32 from per-component index bounds ``mins`` /
+    ``maxs`` (K, 3), index sums (K, 3) and voxel counts (K,)."""
+    k = len(counts)
     s = float(voxel_size)
     o = np.asarray(origin, dtype=np.float64).reshape(3)
     n = np.maximum(counts, 1)[:, None]

@@ -29,7 +29,7 @@ class NaiveTarget:
         cand = scene.near_xy(self.x, rxy)
         if cand.size == 0:
             return cand
-        d = scene.centres[cand] - self.x
+        d = scene.centres_at(cand) - self.x
         rz = max(p.beta * self.x[2], scene.voxel_size)
         inside = (d[:, 0] ** 2 + d[:, 1] ** 2) / rxy ** 2 + (d[:, 2] / rz) ** 2 <= 1.0
         return cand[inside]
@@ -37,10 +37,10 @@ class NaiveTarget:
     @classmethod
     def step_all(cls, targets: list["NaiveTarget"], scene: SceneFrame) -> None:
         regions = [t.region(scene) for t in targets]
-        counts = np.zeros(len(scene.centres), dtype=np.int32)
+        counts = np.zeros(scene.n, dtype=np.int32)
         for r in regions:
             counts[r] += 1
         for t, r in zip(targets, regions):
             own = r[counts[r] == 1]           # Eq. 4.7: drop what another region also holds
             if own.size:
-                t.x = scene.centres[own].mean(axis=0)   # Eq. 4.5
+                t.x = scene.centres_at(own).mean(axis=0)   # Eq. 4.5

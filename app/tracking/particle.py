@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from app.tracking import columns
 from app.tracking.scene import SceneFrame, histogram
 
 __all__ = ["ParticleTarget", "ellipsoid_voxels"]
@@ -66,17 +67,11 @@ def _likelihoods(particles, centres, bins, sx, sy, voxel_volume, ref, use_colour
 def ellipsoid_voxels(scene: SceneFrame, x, sx: float, exclude_xy=None) -> np.ndarray:
     """List positions of the voxels in the body ellipsoid at ``x`` (axes sx, sx, z),
     without those nearer (xy) to one of ``exclude_xy`` than to ``x``."""
-    cand = scene.near_xy(x, sx)
-    if cand.size == 0:
-        return cand
-    d = scene.centres[cand] - x
-    sz = max(float(x[2]), 0.05)
-    cand = cand[(d[:, 0] ** 2 + d[:, 1] ** 2) / sx ** 2 + (d[:, 2] / sz) ** 2 <= 1.0]
-    if exclude_xy is not None and len(exclude_xy) and cand.size:
-        own = ((scene.centres[cand, :2] - x[:2]) ** 2).sum(axis=1)
-        other = ((scene.centres[cand, None, :2] - np.asarray(exclude_xy)[None, :, :2]) ** 2).sum(axis=2).min(axis=1)
-        cand = cand[own <= other]
-    return cand
+    excl = np.zeros((0, 2)) if exclude_xy is None or not len(exclude_xy) else \
+        np.ascontiguousarray(np.asarray(exclude_xy, dtype=np.float64)[:, :2])
+    o = scene.origin
+    return columns.ellipsoid_voxels(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
+                                    scene.voxel_size, np.asarray(x, dtype=np.float64), float(sx), excl)
 
 
 def blocking(points_xy: np.ndarray, others_xy: np.ndarray, k: float) -> np.ndarray:
@@ -130,7 +125,7 @@ class ParticleTarget:
         col = np.zeros(n)
         use_colour = self.colour and self.reference is not None
         ref = self.reference if use_colour else np.zeros(1)
-        _likelihoods(parts, scene.centres[local], scene.bins[local], p.sx, p.sx, scene.voxel_size ** 3,
+        _likelihoods(parts, scene.centres_at(local), scene.bins[local], p.sx, p.sx, scene.voxel_size ** 3,
                      ref, use_colour, raw, col)
         like = p.lam * raw + (1 - p.lam) * col if use_colour else raw          # Eq. 4.8
         w = like * blocking(parts[:, :2], others, 1.0 / p.sx ** 2)            # Eq. 4.12-4.13

@@ -1,16 +1,21 @@
 """One frame as the filters see it (§4.2.1: ``z_t = {V_t, V_t^C}`` plus ``V_t^S`` and the
-components), an occupancy index over the grid, and the colour model of §4.3.2.
+components), and the colour model of §4.3.2.
 
-:class:`SceneFrame` holds the voxel centres, grid indices, surface flags, YCbCr colour
-bins of the coloured (surface) voxels, component labels, features and person verdicts.
-:class:`OccupancyIndex` answers "which voxel of the list is at (i, j, k)" for the
-neighbourhood queries of Sparse Sampling (Eq. 4.20-4.21) in O(1): it is written for the
-occupied voxels and wiped the same way, so a frame costs O(occupied) (DESIGN §3).
+:class:`SceneFrame` holds the grid indices (sorted by (x, y, z), as the reconstruction
+publishes them; an unsorted list is sorted once), surface flags, YCbCr colour bins of
+the coloured (surface) voxels, component labels, features and person verdicts, and
+the column index of :mod:`app.tracking.columns` through which every neighbourhood
+query is answered in O(visited voxels) (DESIGN §3). Voxel centres are computed for
+the voxels asked for (:meth:`SceneFrame.centres_at`), never for the whole frame.
+:class:`OccupancyIndex` keeps the grid's per-frame buffers between frames (and a dense
+grid of list positions for whoever still asks for ``scene.grid``).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from app.tracking import columns
 
 __all__ = ["SceneFrame", "OccupancyIndex", "colour_bins", "histogram", "bhattacharyya", "coverage_threshold",
            "BINS"]
@@ -60,35 +65,28 @@ def _write(grid, idx, value_from_index):
         grid[idx[a, 0], idx[a, 1], idx[a, 2]] = a if value_from_index else -1
 
 
-@njit(cache=True, nogil=True)
-def _within(centres, order, a, b, x, y, r2):
-    """List positions ``a .. b`` (through ``order`` when given) whose centre lies within
-    ``sqrt(r2)`` of ``(x, y)``."""
-    out = np.empty(b - a, dtype=np.int64)
-    m = 0
-    for k in range(a, b):
-        i = order[k] if order.shape[0] else k
-        dx = centres[i, 0] - x
-        dy = centres[i, 1] - y
-        if dx * dx + dy * dy <= r2:
-            out[m] = i
-            m += 1
-    return out[:m]
-
-
 class OccupancyIndex:
-    """Grid of list positions (-1: empty), kept between frames."""
+    """The per-grid buffers of the scene frames, kept between frames: the column
+    starts (8 bytes per grid column) and, on demand, a dense grid of list positions
+    (-1: empty) written for the occupied voxels and wiped the same way."""
 
     def __init__(self, dims):
         self.dims = tuple(int(d) for d in dims)
-        self.grid = np.full(self.dims, -1, dtype=np.int32)
+        self.col_start = np.zeros(self.dims[0] * self.dims[1] + 1, dtype=np.int64)
+        self._grid = None
         self._idx = np.zeros((0, 3), dtype=np.int64)
 
     def load(self, indices: np.ndarray) -> np.ndarray:
-        _write(self.grid, self._idx, False)
+        if self._grid is None:
+            self._grid = np.full(self.dims, -1, dtype=np.int32)
+        _write(self._grid, self._idx, False)
         self._idx = np.ascontiguousarray(indices, dtype=np.int64).reshape(-1, 3)
-        _write(self.grid, self._idx, True)
-        return self.grid
+        _write(self._grid, self._idx, True)
+        return self._grid
+
+    @property
+    def grid(self) -> np.ndarray:
+        return self._grid
 
 
 class SceneFrame:
@@ -97,44 +95,65 @@ class SceneFrame:
     def __init__(self, frame: int, t: float, indices, colours, surface, labels, features, person,
                  origin, voxel_size: float, occupancy: OccupancyIndex | None = None):
         self.frame, self.t = int(frame), float(t)
-        self.indices = np.ascontiguousarray(indices, dtype=np.int64).reshape(-1, 3)
-        n = len(self.indices)
+        idx = np.ascontiguousarray(indices, dtype=np.int64).reshape(-1, 3)
+        n = len(idx)
         self.origin = np.asarray(origin, dtype=np.float64).reshape(3)
         self.voxel_size = float(voxel_size)
-        self.centres = self.origin + (self.indices + 0.5) * self.voxel_size
+        if occupancy is None:
+            occupancy = OccupancyIndex(tuple(int(d) for d in (idx.max(0) + 1 if n else (1, 1, 1))))
+        self.occupancy = occupancy
+        self.dims = occupancy.dims
         surface = np.asarray(surface, dtype=bool).reshape(-1)
-        self.surface = surface if surface.shape == (n,) else np.zeros(n, dtype=bool)
+        surface = surface if surface.shape == (n,) else np.zeros(n, dtype=bool)
         colours = np.asarray(colours).reshape(-1, 3) if np.asarray(colours).size else np.zeros((0, 3), np.uint8)
+        labels = np.asarray(labels, dtype=np.int64).reshape(n)
         self.has_colour = len(colours) == n and n > 0
+        self.col_start = occupancy.col_start
+        if not columns.column_starts(idx, self.dims[0], self.dims[1], self.dims[2], self.col_start):
+            # the column index needs (x, y, z) order
+            order = np.argsort((idx[:, 0] * self.dims[1] + idx[:, 1]) * self.dims[2] + idx[:, 2], kind="stable")
+            idx, surface, labels = idx[order], surface[order], labels[order]
+            colours = colours[order] if self.has_colour else colours
+            columns.column_starts(idx, self.dims[0], self.dims[1], self.dims[2], self.col_start, False)
+        self.indices = idx
+        self.surface = surface
         # colour bin of every voxel; -1 where the voxel has no colour (interior, uncoloured)
         self.bins = np.full(n, -1, dtype=np.int64)
         if self.has_colour:
             coloured = self.surface if self.surface.any() else colours.any(axis=1)
             self.bins[coloured] = colour_bins(colours[coloured])
-        self.labels = np.asarray(labels, dtype=np.int64).reshape(n)
+        self.labels = labels
         self.features = np.asarray(features, dtype=np.float64).reshape(-1, 9)
         self.person = np.asarray(person, dtype=bool).reshape(-1)
-        self.occupancy = occupancy
-        self._x_sorted = None
-        self.grid = occupancy.load(self.indices) if occupancy is not None else None
+        self._centres = None
+
+    @property
+    def n(self) -> int:
+        return len(self.indices)
 
     @property
     def components(self) -> int:
         return len(self.features)
 
+    @property
+    def centres(self) -> np.ndarray:
+        """Centres (N, 3) of every voxel (computed once, on demand: prefer :meth:`centres_at`)."""
+        if self._centres is None:
+            self._centres = self.origin + (self.indices + 0.5) * self.voxel_size
+        return self._centres
+
+    def centres_at(self, sel: np.ndarray) -> np.ndarray:
+        """Centres (len(sel), 3) of the voxels at list positions ``sel``."""
+        return self.origin + (self.indices[sel] + 0.5) * self.voxel_size
+
+    @property
+    def grid(self) -> np.ndarray:
+        """Dense grid of list positions (-1: empty), written on first use."""
+        return self.occupancy.load(self.indices) if self.occupancy.grid is None or \
+            not np.array_equal(self.occupancy._idx, self.indices) else self.occupancy.grid
+
     def near_xy(self, xy, radius: float) -> np.ndarray:
-        """Indices of the voxels within ``radius`` (m) of ``xy`` in the xy plane (the list
-        is sorted by grid x first, as the reconstruction publishes it, so only a slab of
-        it is looked at; an unsorted list is sorted once)."""
-        if self._x_sorted is None:
-            ix = self.indices[:, 0]
-            self._x_sorted = bool(np.all(ix[1:] >= ix[:-1])) if len(ix) > 1 else True
-            if not self._x_sorted:
-                self._order = np.argsort(ix, kind="stable")
-                self._ix = ix[self._order]
-        lo_x = int(np.floor((xy[0] - radius - self.origin[0]) / self.voxel_size - 0.5))
-        hi_x = int(np.ceil((xy[0] + radius - self.origin[0]) / self.voxel_size - 0.5))
-        ix = self.indices[:, 0] if self._x_sorted else self._ix
-        a, b = np.searchsorted(ix, lo_x, "left"), np.searchsorted(ix, hi_x, "right")
-        order = self._order if not self._x_sorted else np.zeros(0, dtype=np.int64)
-        return _within(self.centres, order, int(a), int(b), float(xy[0]), float(xy[1]), radius * radius)
+        """List positions (ascending) of the voxels within ``radius`` (m) of ``xy`` in the
+        xy plane (the columns of the disc)."""
+        return columns.near(self.col_start, self.dims[0], self.dims[1], self.origin[0], self.origin[1],
+                            self.voxel_size, float(xy[0]), float(xy[1]), float(radius))

@@ -9,7 +9,8 @@ surface; the centroid is their weighted mean (Eq. 4.18). Each frame:
    adjacent voxels, from a random one onwards, for a free one, and is dismissed if there
    is none (Fig. 4.8(b));
 3. pseudo-likelihood (Eq. 4.19): ``lambda p_raw + (1 - lambda) p_colour`` on the
-   neighbourhood ``C(y, q=26, r=2)`` (the 5x5x5 voxels around the sample):
+   neighbourhood ``C(y, q=26, r=2)`` (the 5x5x5 voxels around the sample, looked up in
+   the frame's column index, :func:`app.tracking.columns.neighbourhood`):
    ``p_raw = 1 - |2 |O| / |C| - 1|`` (Eq. 4.20, highest on a surface) and ``p_colour`` the
    share of the coloured voxels of the neighbourhood whose bin in the target's reference
    histogram is at least ``gamma``, the threshold that keeps the bins holding 80 % of
@@ -26,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from app.tracking.columns import neighbourhood
 from app.tracking.particle import blocking, ellipsoid_voxels, systematic_resample
 from app.tracking.scene import SceneFrame, coverage_threshold, histogram
 
@@ -64,37 +66,6 @@ def _propagate(parents, offsets, starts, neighbours, taken, out):
     for a in range(m):   # wipe the scratch grid
         taken[out[a, 0], out[a, 1], out[a, 2]] = 0
     return m
-
-
-@njit(cache=True, nogil=True)
-def _pseudo_likelihood(samples, grid, bins, ref, gamma, use_colour, r, raw, col):
-    """Eq. 4.20 and 4.21 on the (2r+1)^3 neighbourhood of every sample."""
-    nx, ny, nz = grid.shape
-    size = (2 * r + 1) ** 3
-    for a in range(samples.shape[0]):
-        occ = 0
-        ncol = 0
-        similar = 0
-        for i in range(samples[a, 0] - r, samples[a, 0] + r + 1):
-            if i < 0 or i >= nx:
-                continue
-            for j in range(samples[a, 1] - r, samples[a, 1] + r + 1):
-                if j < 0 or j >= ny:
-                    continue
-                for k in range(samples[a, 2] - r, samples[a, 2] + r + 1):
-                    if k < 0 or k >= nz:
-                        continue
-                    v = grid[i, j, k]
-                    if v >= 0:
-                        occ += 1
-                        if use_colour:
-                            b = bins[v]
-                            if b >= 0:
-                                ncol += 1
-                                if ref[b] >= gamma:
-                                    similar += 1
-        raw[a] = 1.0 - abs(2.0 * occ / size - 1.0)
-        col[a] = similar / ncol if ncol > 0 else 0.0
 
 
 class SparseTarget:
@@ -162,11 +133,11 @@ class SparseTarget:
         offsets = rng.integers(-step, step + 1, (n, 3))
         starts = rng.integers(0, 26, n)
         placed = np.empty((n, 3), dtype=np.int64)
-        taken = _scratch(scene.grid.shape)
+        taken = _scratch(scene.dims)
         m = _propagate(parents, offsets, starts, _NEIGHBOURS, taken, placed)
         samples = placed[:m]
         if len(fresh):   # fresh samples on voxels no replica took
-            dims = np.asarray(scene.grid.shape, dtype=np.int64)
+            dims = np.asarray(scene.dims, dtype=np.int64)
             key = lambda a: (a[:, 0] * dims[1] + a[:, 1]) * dims[2] + a[:, 2]  # noqa: E731
             samples = np.concatenate([samples, fresh[~np.isin(key(fresh), key(samples))]])
             m = len(samples)
@@ -175,7 +146,8 @@ class SparseTarget:
         use_colour = self.colour and self.reference is not None
         ref = self.reference if use_colour else np.zeros(1)
         gamma = coverage_threshold(self.reference, p.coverage) if use_colour else 0.0
-        _pseudo_likelihood(samples, scene.grid, scene.bins, ref, gamma, use_colour, p.ss_radius, raw, col)
+        neighbourhood(samples, scene.col_start, scene.indices, *scene.dims, scene.bins, ref, gamma, use_colour,
+                      p.ss_radius, raw, col)                                  # Eq. 4.20-4.21
         w = p.lam * raw + (1 - p.lam) * col if use_colour else raw           # Eq. 4.19
         world = scene.origin + (samples + 0.5) * scene.voxel_size
         far = ((world[:, :2] - self.x[:2]) ** 2).sum(axis=1) > (p.alpha * p.sx) ** 2

@@ -24,7 +24,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from app.tracking.blobs import CLASSIFIER_FEATURES, component_features
+from app.tracking import columns
+from app.tracking.blobs import CLASSIFIER_FEATURES, component_features, features_from_sums
 from app.tracking.naive import NaiveTarget
 from app.tracking.particle import ParticleTarget
 from app.tracking.scene import SceneFrame
@@ -110,6 +111,7 @@ class MultiTracker:
         self.next_id = 1
         self.deleted = 0
         self._labeller = None
+        self._scratch = None
 
     # -- one frame --------------------------------------------------------------------
     def update(self, scene: SceneFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -129,24 +131,31 @@ class MultiTracker:
         the voxels within ``refine_radius`` (xy) that are nearer to it than to any other
         target, so the filter's estimate is re-centred on its share of the mass (the
         filters keep their samples / particles; identities stay theirs)."""
-        xs = np.array([t.target.x for t in self.tracks])
+        xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64)
         r = self.p.refine_radius
+        o = scene.origin
+        acc = np.zeros(3)
         for i, t in enumerate(self.tracks):
-            near = scene.near_xy(xs[i], r)
-            if near.size == 0:
-                continue
-            pts = scene.centres[near]
+            # only targets whose discs overlap compete for voxels
             close = np.nonzero(((xs[:, :2] - xs[i, :2]) ** 2).sum(axis=1) < (2 * r) ** 2)[0]
-            if len(close) > 1:   # only targets whose discs overlap compete for voxels
-                d = ((pts[:, None, :2] - xs[None, close, :2]) ** 2).sum(axis=2)
-                pts = pts[close[d.argmin(axis=1)] == i]
-            if len(pts) >= 3:
-                t.target.x = pts.mean(axis=0)
+            k = columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
+                                    scene.voxel_size, xs, i, close, r, acc)
+            if k >= 3:
+                t.target.x = acc / k
 
     def _make(self, position, scene):
         if self.cls is NaiveTarget:
             return NaiveTarget(position, scene, self.rng, self.p)
         return self.cls(position, scene, self.rng, self.p, colour=self.colour)
+
+    def _disc(self, scene: SceneFrame, x, r: float) -> tuple[int, int]:
+        """``(voxels, host label)`` within ``r`` (xy) of ``x`` (host -1 when none)."""
+        if self._scratch is None or len(self._scratch) < scene.components:
+            self._scratch = np.zeros(max(scene.components, 64), dtype=np.int64)
+        o = scene.origin
+        n, host = columns.disc_support(scene.col_start, scene.dims[0], scene.dims[1], o[0], o[1], scene.voxel_size,
+                                       float(x[0]), float(x[1]), float(r), scene.labels, self._scratch)
+        return int(n), int(host)
 
     def _shares(self, scene: SceneFrame):
         """Host component of each track (the label with most voxels within ``s_x``, or -1)
@@ -157,26 +166,35 @@ class MultiTracker:
         hosts = np.full(len(self.tracks), -1, dtype=np.int64)
         support = np.zeros(len(self.tracks))
         for i, t in enumerate(self.tracks):
-            near = scene.near_xy(t.target.x, p.sx)
-            support[i] = len(near) * scene.voxel_size ** 3 * 1100.0
-            if near.size:
-                hosts[i] = np.bincount(scene.labels[near]).argmax()
+            k, hosts[i] = self._disc(scene, t.target.x, p.sx)
+            support[i] = k * scene.voxel_size ** 3 * 1100.0
         person = np.zeros(len(self.tracks), dtype=bool)
+        shared = []
         for c in np.unique(hosts[hosts >= 0]):
             mine = np.nonzero(hosts == c)[0]
             if len(mine) == 1 or self.classifier is None:
                 person[mine] = bool(scene.person[c])
-                continue
-            sel = np.nonzero(scene.labels == c)[0]
-            xs = np.array([self.tracks[i].target.x[:2] for i in mine])
-            owner = ((scene.centres[sel, None, :2] - xs[None]) ** 2).sum(axis=2).argmin(axis=1)
-            for k, i in enumerate(mine):
-                part = sel[owner == k]
-                if len(part) == 0:
-                    continue
-                f = component_features(scene.indices[part], np.zeros(len(part), np.int64), 1, scene.origin,
-                                       scene.voxel_size)
-                person[i] = bool(self.classifier.predict(f[:, :len(CLASSIFIER_FEATURES)])[0])
+            else:
+                shared.append((c, mine))
+        if shared:
+            # every voxel of a shared host goes to the nearest (xy) of its tracks
+            host_of = np.full(scene.components, -1, dtype=np.int64)
+            groups = np.concatenate([mine for _, mine in shared])
+            group_start = np.cumsum([0] + [len(mine) for _, mine in shared])
+            for g, (c, _) in enumerate(shared):
+                host_of[c] = g
+            xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64)
+            k = len(groups)
+            mins = np.full((k, 3), np.iinfo(np.int64).max, dtype=np.int64)
+            maxs = np.full((k, 3), -1, dtype=np.int64)
+            sums = np.zeros((k, 3))
+            counts = np.zeros(k, dtype=np.int64)
+            columns.share_sums(scene.indices, scene.labels, scene.origin[0], scene.origin[1], scene.voxel_size,
+                               host_of, xs, groups, group_start, mins, maxs, sums, counts)
+            f = features_from_sums(mins, maxs, sums, counts, scene.origin, scene.voxel_size)
+            verdict = self.classifier.predict(f[:, :len(CLASSIFIER_FEATURES)]).astype(bool)
+            has = f[:, 8] > 0
+            person[groups[has]] = verdict[has]
         return hosts, person, support
 
     def _delete(self, scene: SceneFrame) -> None:
@@ -205,41 +223,46 @@ class MultiTracker:
 
     def _create(self, scene: SceneFrame) -> None:
         p = self.p
-        n = len(scene.centres)
+        n = scene.n
         if n == 0 or not scene.person.any():
             self.candidates = []
             return
-        claimed = np.zeros(n, dtype=bool)
         hosts = set()
         for t in self.tracks:
-            near = scene.near_xy(t.target.x, p.claim_radius)
-            claimed[near] = True
-            if near.size:
-                hosts.add(int(np.bincount(scene.labels[near]).argmax()))
-        free = ~claimed & scene.person[scene.labels]
+            k, host = self._disc(scene, t.target.x, p.claim_radius)
+            if k:
+                hosts.add(host)
+        xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64).reshape(-1, 3)
+        free = np.empty(n, dtype=bool)
+        o = scene.origin
+        columns.free_voxels(scene.col_start, scene.dims[0], scene.dims[1], o[0], o[1], scene.voxel_size, xs,
+                            float(p.claim_radius), scene.labels, scene.person, free)
+        free_at = np.nonzero(free)[0]
+        free_labels = scene.labels[free_at]
         found = []
-        targets_xy = np.array([t.target.x[:2] for t in self.tracks]).reshape(-1, 2)
-        for c in np.unique(scene.labels[free]):
+        targets_xy = xs[:, :2]
+        present = np.nonzero(np.bincount(free_labels, minlength=scene.components))[0]
+        for c in present:
             if c not in hosts:                           # a component no target holds
-                sel = np.nonzero(scene.labels == c)[0]
-                pieces = [(sel, scene.features[c:c + 1], p.new_distance)]
-            else:                                        # the free pieces of a tracked component
-                sel = np.nonzero(free & (scene.labels == c))[0]
-                if len(sel) * scene.voxel_size ** 3 * 1100.0 < 4 * p.min_support_kg:
-                    continue                             # too little left for a person
-                pieces = [(part, None, p.new_distance_merged) for part in self._pieces(scene, sel)]
-            for part, feats, distance in pieces:
-                if feats is None:
-                    feats = component_features(scene.indices[part], np.zeros(len(part), np.int64), 1,
-                                               scene.origin, scene.voxel_size).astype(np.float64)
-                    if self.classifier is not None:
-                        looks = bool(self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])[0])
-                    else:
-                        looks = feats[0, 0] >= 4 * p.min_support_kg
-                    if not looks:
-                        continue
-                centre = scene.centres[part].mean(axis=0)
-                if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < distance ** 2).any():
+                centre = self._component_centre(scene, c)
+                if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance ** 2).any():
+                    continue
+                found.append(centre)
+                continue
+            # the free pieces of a tracked component that look like a person
+            sel = free_at[free_labels == c]
+            if len(sel) * scene.voxel_size ** 3 * 1100.0 < 4 * p.min_support_kg:
+                continue                                 # too little left for a person
+            pieces, k = self._labeller_of(scene)(scene.indices[sel])
+            feats = component_features(scene.indices[sel], pieces, k, scene.origin, scene.voxel_size).astype(np.float64)
+            if self.classifier is not None:
+                looks = self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])
+            else:
+                looks = feats[:, 0] >= 4 * p.min_support_kg
+            for j in np.nonzero(looks)[0]:
+                centre = scene.centres_at(sel[pieces == j]).mean(axis=0)
+                if len(targets_xy) and \
+                        (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance_merged ** 2).any():
                     continue
                 found.append(centre)
         # confirmation: a candidate seen again near where it was the frame before
@@ -256,16 +279,24 @@ class MultiTracker:
                 nxt.append((c, count))
         self.candidates = nxt
 
-    def _pieces(self, scene: SceneFrame, sel: np.ndarray) -> list[np.ndarray]:
-        """Connected pieces (26-connectivity) of a subset of the voxels."""
+    def _component_centre(self, scene: SceneFrame, c: int) -> np.ndarray:
+        """Mean voxel centre of component ``c`` (all of the frame's component centres
+        are summed in one pass, once per frame, when first asked for)."""
+        if getattr(self, "_centres_frame", None) is not scene:
+            self._centres_frame = scene
+            sums = np.zeros((scene.components, 3))
+            counts = np.zeros(scene.components, dtype=np.int64)
+            columns.component_sums(scene.indices, scene.labels, scene.origin, scene.voxel_size, sums, counts)
+            self._centres = sums / np.maximum(counts, 1)[:, None]
+        return self._centres[c].copy()
+
+    def _labeller_of(self, scene: SceneFrame):
+        """The labeller of the free pieces of merged components (26-connectivity)."""
         from app.components import Labeller
 
-        dims = tuple(int(d) for d in (scene.grid.shape if scene.grid is not None else scene.indices.max(0) + 1))
-        if self._labeller is None or self._labeller.grid.shape != dims:
-            self._labeller = Labeller(dims)
-        labels, n = self._labeller(scene.indices[sel])
-        order = np.argsort(labels, kind="stable")
-        return np.split(sel[order], np.cumsum(np.bincount(labels, minlength=n))[:-1])
+        if self._labeller is None or self._labeller.dims != tuple(scene.dims):
+            self._labeller = Labeller(scene.dims)
+        return self._labeller
 
     def _start(self, centre: np.ndarray) -> np.ndarray:
         x = centre.copy()
