@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["Labeller", "label_voxels", "label_voxels_union_find", "component_sizes", "is_sorted"]
+__all__ = ["Labeller", "label_voxels", "label_voxels_union_find", "component_sizes", "is_sorted", "voxel_runs",
+           "label_runs"]
 
 
 @njit(cache=True, nogil=True)
@@ -57,18 +58,13 @@ def _is_sorted(idx, ny, nz):
 
 
 @njit(cache=True, nogil=True)
-def _label_runs(idx, nx, ny, nz, connectivity, col_first, labels):
-    """Run-based labelling of a list sorted by (x, y, z); ``col_first`` (nx * ny) is
-    scratch filled with -1 (left so). Labels in the order of first appearance; -1 when
-    the list turns out not to be strictly sorted."""
+def voxel_runs(idx, ny, nz, run_start, run_z0, run_z1, run_col):
+    """Split a list sorted by (x, y, z) into runs of consecutive z in one (x, y) column:
+    run ``r`` holds list positions ``run_start[r] .. run_start[r + 1]``, z from
+    ``run_z0[r]`` to ``run_z1[r]``, column ``run_col[r] = x * ny + y`` (arrays of
+    N + 1 / N entries). Returns the number of runs, -1 when the list is not strictly
+    sorted."""
     n = idx.shape[0]
-    if n == 0:
-        return 0
-    # runs: start position, z0, z1, column
-    run_start = np.empty(n + 1, dtype=np.int64)
-    run_z0 = np.empty(n, dtype=np.int64)
-    run_z1 = np.empty(n, dtype=np.int64)
-    run_col = np.empty(n, dtype=np.int64)
     m = 0
     prev = -1
     for a in range(n):
@@ -87,6 +83,16 @@ def _label_runs(idx, nx, ny, nz, connectivity, col_first, labels):
             run_col[m] = col
             m += 1
     run_start[m] = n
+    return m
+
+
+@njit(cache=True, nogil=True)
+def label_runs(run_z0, run_z1, run_col, m, ny, connectivity, col_first, run_label):
+    """Connected components of runs ``0 .. m`` (sorted by column, then z): two runs of
+    neighbouring columns touch when their z intervals, widened by one voxel for the
+    neighbours the connectivity allows across an edge, overlap. ``col_first`` (nx * ny)
+    is scratch filled with -1 (left so). ``run_label`` gets labels numbered in run
+    order; returns their count."""
     # first run of each column (runs of a column are consecutive and sorted by z)
     for r in range(m - 1, -1, -1):
         col_first[run_col[r]] = r
@@ -125,10 +131,31 @@ def _label_runs(idx, nx, ny, nz, connectivity, col_first, labels):
         if remap[root] < 0:
             remap[root] = count
             count += 1
-        lab = remap[root]
+        run_label[r] = remap[root]
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _label_runs(idx, nx, ny, nz, connectivity, col_first, labels):
+    """Run-based labelling of a list sorted by (x, y, z) (see the module docstring).
+    Labels in the order of first appearance. Returns ``(count, runs, run_start,
+    run_z0, run_z1, run_col, run_label)``; count -1 when the list is not strictly
+    sorted."""
+    n = idx.shape[0]
+    run_start = np.empty(n + 1, dtype=np.int64)
+    run_z0 = np.empty(n, dtype=np.int64)
+    run_z1 = np.empty(n, dtype=np.int64)
+    run_col = np.empty(n, dtype=np.int64)
+    run_label = np.empty(n, dtype=np.int64)
+    m = voxel_runs(idx, ny, nz, run_start, run_z0, run_z1, run_col)
+    if m < 0:
+        return -1, 0, run_start, run_z0, run_z1, run_col, run_label
+    count = label_runs(run_z0, run_z1, run_col, m, ny, connectivity, col_first, run_label)
+    for r in range(m):
+        lab = run_label[r]
         for a in range(run_start[r], run_start[r + 1]):
             labels[a] = lab
-    return count
+    return count, m, run_start, run_z0, run_z1, run_col, run_label
 
 
 @njit(cache=True, nogil=True)
@@ -204,6 +231,8 @@ class Labeller:
         self.dims = tuple(int(d) for d in dims)
         self.connectivity = int(connectivity)
         self.col_first = np.full(self.dims[0] * self.dims[1], -1, dtype=np.int64)
+        #: the runs of the last sorted list labelled: (start (R+1), z0, z1, column, label)
+        self.runs = None
 
     def __call__(self, indices: np.ndarray) -> tuple[np.ndarray, int]:
         """Component label (N,) of each voxel of ``indices`` (N, 3), and the count.
@@ -211,14 +240,16 @@ class Labeller:
         idx = np.asarray(indices).reshape(-1, 3)
         labels = np.empty(len(idx), dtype=np.int64)
         nx, ny, nz = self.dims
-        n = _label_runs(idx, nx, ny, nz, self.connectivity, self.col_first, labels)
+        n, m, start, z0, z1, col, run_label = _label_runs(idx, nx, ny, nz, self.connectivity, self.col_first, labels)
         if n >= 0:
+            self.runs = (start[:m + 1], z0[:m], z1[:m], col[:m], run_label[:m])
             return labels, int(n)
+        self.runs = None
         # unsorted (or a voxel listed twice): label the sorted distinct voxels, map back
         key = (idx[:, 0].astype(np.int64) * ny + idx[:, 1]) * nz + idx[:, 2]
         uniq, first, inverse = np.unique(key, return_index=True, return_inverse=True)
         ulabels = np.empty(len(uniq), dtype=np.int64)
-        n = _label_runs(np.ascontiguousarray(idx[first]), nx, ny, nz, self.connectivity, self.col_first, ulabels)
+        n = _label_runs(np.ascontiguousarray(idx[first]), nx, ny, nz, self.connectivity, self.col_first, ulabels)[0]
         labels[:] = ulabels[inverse.reshape(-1)]
         _relabel_first_appearance(labels, n)
         return labels, int(n)

@@ -89,7 +89,19 @@ class ComponentAnalysis:
     def __call__(self, indices: np.ndarray):
         """``(labels (N,) int32, features (K, F) float32, person (K,) uint8)``."""
         labels, k = self.labeller(indices)
-        feats = component_features(indices, labels, k, self.origin, self.voxel_size)
+        runs = self.labeller.runs
+        if runs is not None:   # the same sums over runs (integers: exact in any order)
+            from app.tracking.columns import run_sums
+
+            start, z0, z1, col, run_label = runs
+            mins = np.full((k, 3), np.iinfo(np.int64).max, dtype=np.int64)
+            maxs = np.full((k, 3), -1, dtype=np.int64)
+            sums = np.zeros((k, 3), dtype=np.float64)
+            counts = np.zeros(k, dtype=np.int64)
+            run_sums(np.arange(len(z0)), z0, z1, col, self.labeller.dims[1], run_label, k, mins, maxs, sums, counts)
+            feats = features_from_sums(mins, maxs, sums, counts, self.origin, self.voxel_size)
+        else:
+            feats = component_features(indices, labels, k, self.origin, self.voxel_size)
         if self.classifier is None:
             person = np.ones(k, dtype=np.uint8)
         else:

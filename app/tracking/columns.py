@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["column_starts", "near", "disc_support", "voronoi_sum", "ellipsoid_voxels", "neighbourhood",
-           "free_voxels", "share_sums", "component_sums"]
+__all__ = ["column_starts", "frame_runs", "near", "disc_support", "voronoi_sum", "ellipsoid_voxels", "neighbourhood",
+           "free_runs", "run_sums", "share_owners", "component_sums", "run_positions"]
 
 
 @njit(cache=True, nogil=True)
@@ -36,6 +36,43 @@ def column_starts(idx, nx, ny, nz, out, strict=True):
     for c in range(1, out.shape[0]):
         out[c] += out[c - 1]
     return True
+
+
+@njit(cache=True, nogil=True)
+def frame_runs(idx, ny, nz, col_start, col_run, run_start, run_z0, run_z1, run_col):
+    """Column starts (as :func:`column_starts`) and the runs of consecutive z of each
+    column (see :func:`app.components.voxel_runs`): the runs of column ``c`` are
+    ``col_run[c] .. col_run[c + 1]``. Returns the number of runs (-1: not sorted)."""
+    col_start[:] = 0
+    col_run[:] = 0
+    m = 0
+    prev = -1
+    last_col = -1
+    last_z = -2
+    for a in range(idx.shape[0]):
+        col = np.int64(idx[a, 0]) * ny + idx[a, 1]
+        z = np.int64(idx[a, 2])
+        key = col * nz + z
+        if key <= prev:
+            return -1
+        prev = key
+        col_start[col + 1] += 1
+        if col == last_col and z == last_z + 1:
+            run_z1[m - 1] = z
+        else:
+            run_start[m] = a
+            run_z0[m] = z
+            run_z1[m] = z
+            run_col[m] = col
+            col_run[col + 1] += 1
+            m += 1
+        last_col = col
+        last_z = z
+    run_start[m] = idx.shape[0]
+    for c in range(1, col_start.shape[0]):
+        col_start[c] += col_start[c - 1]
+        col_run[c] += col_run[c - 1]
+    return m
 
 
 @njit(cache=True, nogil=True)
@@ -75,10 +112,10 @@ def near(col_start, nx, ny, ox, oy, s, x, y, r):
 
 
 @njit(cache=True, nogil=True)
-def disc_support(col_start, nx, ny, ox, oy, s, x, y, r, labels, scratch):
+def disc_support(col_run, run_z0, run_z1, run_label, nx, ny, ox, oy, s, x, y, r, scratch):
     """``(count, host)``: the voxels within ``r`` (xy) of ``(x, y)`` and the label most of
-    them carry (the smallest such label on a tie; -1 when there are none). ``scratch``
-    (labels' count) is zero and left so."""
+    them carry (the smallest such label on a tie; -1 when there are none), counted by
+    runs. ``scratch`` (labels' count) is zero and left so."""
     r2 = r * r
     i0, i1 = _span(x, r, ox, s, nx)
     j0, j1 = _span(y, r, oy, s, ny)
@@ -91,8 +128,9 @@ def disc_support(col_start, nx, ny, ox, oy, s, x, y, r, labels, scratch):
             dy = oy + (j + 0.5) * s - y
             if dx * dx + dy * dy <= r2:
                 c = i * ny + j
-                for a in range(col_start[c], col_start[c + 1]):
-                    lab = labels[a]
+                for q in range(col_run[c], col_run[c + 1]):
+                    lab = run_label[q]
+                    k = run_z1[q] - run_z0[q] + 1
                     if scratch[lab] == 0:
                         if nt == touched.shape[0]:
                             grown = np.empty(2 * nt, dtype=np.int64)
@@ -100,8 +138,8 @@ def disc_support(col_start, nx, ny, ox, oy, s, x, y, r, labels, scratch):
                             touched = grown
                         touched[nt] = lab
                         nt += 1
-                    scratch[lab] += 1
-                    count += 1
+                    scratch[lab] += k
+                    count += k
     host = -1
     best = 0
     for t in range(nt):
@@ -196,10 +234,9 @@ def ellipsoid_voxels(col_start, idx, nx, ny, ox, oy, oz, s, x, sx, exclude):
 
 
 @njit(cache=True, nogil=True)
-def neighbourhood(samples, col_start, idx, nx, ny, nz, bins, ref, gamma, use_colour, r, raw, col):
-    """Eq. 4.20 and 4.21 on the (2r+1)^3 neighbourhood of every sample: the occupied
-    voxels of each of the (2r+1)^2 columns around it with z within r (binary search in
-    the column, whose voxels are sorted by z)."""
+def neighbourhood(samples, col_run, run_start, run_z0, run_z1, nx, ny, bins, ref, gamma, use_colour, r, raw, col):
+    """Eq. 4.20 and 4.21 on the (2r+1)^3 neighbourhood of every sample: the runs of
+    each of the (2r+1)^2 columns around it that overlap its z range."""
     size = (2 * r + 1) ** 3
     for a in range(samples.shape[0]):
         occ = 0
@@ -214,42 +251,38 @@ def neighbourhood(samples, col_start, idx, nx, ny, nz, bins, ref, gamma, use_col
                 if j < 0 or j >= ny:
                     continue
                 c = i * ny + j
-                lo = col_start[c]
-                hi = col_start[c + 1]
-                while lo < hi:   # first voxel with z >= z0
-                    mid = (lo + hi) >> 1
-                    if idx[mid, 2] < z0:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                end = col_start[c + 1]
-                v = lo
-                while v < end and idx[v, 2] <= z1:
-                    occ += 1
+                for q in range(col_run[c], col_run[c + 1]):
+                    lo = max(run_z0[q], z0)
+                    hi = min(run_z1[q], z1)
+                    if lo > hi:
+                        if run_z0[q] > z1:
+                            break
+                        continue
+                    occ += hi - lo + 1
                     if use_colour:
-                        b = bins[v]
-                        if b >= 0:
-                            ncol += 1
-                            if ref[b] >= gamma:
-                                similar += 1
-                    v += 1
+                        base = run_start[q] - run_z0[q]
+                        for z in range(lo, hi + 1):
+                            b = bins[base + z]
+                            if b >= 0:
+                                ncol += 1
+                                if ref[b] >= gamma:
+                                    similar += 1
         raw[a] = 1.0 - abs(2.0 * occ / size - 1.0)
         col[a] = similar / ncol if ncol > 0 else 0.0
 
 
 @njit(cache=True, nogil=True)
-def free_voxels(col_start, nx, ny, ox, oy, s, xs, r, labels, person, free):
-    """``free`` (N,) bool: the voxels of person components no target claims (farther
-    than ``r`` (xy) from every row of ``xs``); returns how many."""
+def free_runs(col_run, nx, ny, ox, oy, s, xs, r, run_label, person, free):
+    """``free`` (runs,) bool: the runs of person components no target claims (their
+    column farther than ``r`` (xy) from every row of ``xs``)."""
     r2 = r * r
-    count = 0
     for i in range(nx):
         cx = ox + (i + 0.5) * s
         for j in range(ny):
             c = i * ny + j
-            a0 = col_start[c]
-            a1 = col_start[c + 1]
-            if a0 == a1:
+            q0 = col_run[c]
+            q1 = col_run[c + 1]
+            if q0 == q1:
                 continue
             cy = oy + (j + 0.5) * s
             claimed = False
@@ -259,44 +292,67 @@ def free_voxels(col_start, nx, ny, ox, oy, s, xs, r, labels, person, free):
                 if dx * dx + dy * dy <= r2:
                     claimed = True
                     break
-            for a in range(a0, a1):
-                f = (not claimed) and person[labels[a]]
-                free[a] = f
-                if f:
-                    count += 1
-    return count
+            for q in range(q0, q1):
+                free[q] = (not claimed) and person[run_label[q]]
 
 
 @njit(cache=True, nogil=True)
-def share_sums(idx, labels, ox, oy, s, host_of, xs, groups, group_start, mins, maxs, sums, counts):
+def run_sums(runs, run_z0, run_z1, run_col, ny, part, k, mins, maxs, sums, counts):
+    """Index bounds, index sums and voxel counts per part (``part[t]`` of run
+    ``runs[t]``), as :func:`app.tracking.blobs.component_features` accumulates them
+    over voxels (the sums of integers are exact, so the order does not matter)."""
+    for t in range(runs.shape[0]):
+        q = runs[t]
+        p = part[t]
+        x = run_col[q] // ny
+        y = run_col[q] - x * ny
+        z0 = run_z0[q]
+        z1 = run_z1[q]
+        n = z1 - z0 + 1
+        counts[p] += n
+        sums[p, 0] += x * n
+        sums[p, 1] += y * n
+        sums[p, 2] += (z0 + z1) * n // 2
+        if x < mins[p, 0]:
+            mins[p, 0] = x
+        if x > maxs[p, 0]:
+            maxs[p, 0] = x
+        if y < mins[p, 1]:
+            mins[p, 1] = y
+        if y > maxs[p, 1]:
+            maxs[p, 1] = y
+        if z0 < mins[p, 2]:
+            mins[p, 2] = z0
+        if z1 > maxs[p, 2]:
+            maxs[p, 2] = z1
+
+
+@njit(cache=True, nogil=True)
+def share_owners(col_run, run_label, nx, ny, ox, oy, s, host_of, xs, groups, group_start, owner):
     """The share of each target of the components hosting several (``host_of[label]``:
-    the group's index, -1 for the others): every voxel of such a component goes to the
-    group's target nearest (xy) to it (first on a tie); per group entry (a row of
-    ``groups``), the index bounds, index sums and voxel count of its share, as
-    :func:`app.tracking.blobs.component_features` accumulates them."""
-    for a in range(idx.shape[0]):
-        g = host_of[labels[a]]
-        if g < 0:
-            continue
-        cx = ox + (idx[a, 0] + 0.5) * s
-        cy = oy + (idx[a, 1] + 0.5) * s
-        best = np.inf
-        owner = -1
-        for k in range(group_start[g], group_start[g + 1]):
-            ex = cx - xs[groups[k], 0]
-            ey = cy - xs[groups[k], 1]
-            d = ex * ex + ey * ey
-            if d < best:
-                best = d
-                owner = k
-        counts[owner] += 1
-        for d in range(3):
-            v = idx[a, d]
-            sums[owner, d] += v
-            if v < mins[owner, d]:
-                mins[owner, d] = v
-            if v > maxs[owner, d]:
-                maxs[owner, d] = v
+    the group's index, -1 for the others): every run of such a component goes to the
+    group's target nearest (xy) to its column (first on a tie), ``owner[run]`` the row
+    of ``groups`` (-1 for the runs of other components)."""
+    for i in range(nx):
+        cx = ox + (i + 0.5) * s
+        for j in range(ny):
+            c = i * ny + j
+            for q in range(col_run[c], col_run[c + 1]):
+                g = host_of[run_label[q]]
+                if g < 0:
+                    owner[q] = -1
+                    continue
+                cy = oy + (j + 0.5) * s
+                best = np.inf
+                o = -1
+                for k in range(group_start[g], group_start[g + 1]):
+                    ex = cx - xs[groups[k], 0]
+                    ey = cy - xs[groups[k], 1]
+                    d = ex * ex + ey * ey
+                    if d < best:
+                        best = d
+                        o = k
+                owner[q] = o
 
 
 @njit(cache=True, nogil=True)
@@ -307,3 +363,18 @@ def component_sums(idx, labels, origin, s, sums, counts):
         counts[c] += 1
         for d in range(3):
             sums[c, d] += origin[d] + (idx[a, d] + 0.5) * s
+
+
+@njit(cache=True, nogil=True)
+def run_positions(run_start, runs):
+    """List positions (in run order) of the voxels of ``runs``."""
+    total = 0
+    for t in range(runs.shape[0]):
+        total += run_start[runs[t] + 1] - run_start[runs[t]]
+    out = np.empty(total, dtype=np.int64)
+    m = 0
+    for t in range(runs.shape[0]):
+        for a in range(run_start[runs[t]], run_start[runs[t] + 1]):
+            out[m] = a
+            m += 1
+    return out

@@ -67,12 +67,13 @@ def _write(grid, idx, value_from_index):
 
 class OccupancyIndex:
     """The per-grid buffers of the scene frames, kept between frames: the column
-    starts (8 bytes per grid column) and, on demand, a dense grid of list positions
+    starts of voxels and runs (16 bytes per grid column) and, on demand, a dense grid of list positions
     (-1: empty) written for the occupied voxels and wiped the same way."""
 
     def __init__(self, dims):
         self.dims = tuple(int(d) for d in dims)
         self.col_start = np.zeros(self.dims[0] * self.dims[1] + 1, dtype=np.int64)
+        self.col_run = np.zeros(self.dims[0] * self.dims[1] + 1, dtype=np.int64)
         self._grid = None
         self._idx = np.zeros((0, 3), dtype=np.int64)
 
@@ -95,7 +96,9 @@ class SceneFrame:
     def __init__(self, frame: int, t: float, indices, colours, surface, labels, features, person,
                  origin, voxel_size: float, occupancy: OccupancyIndex | None = None):
         self.frame, self.t = int(frame), float(t)
-        idx = np.ascontiguousarray(indices, dtype=np.int64).reshape(-1, 3)
+        idx = np.asarray(indices).reshape(-1, 3)   # any integer type (the bus's uint16 kept: no copy)
+        if idx.dtype.kind not in "iu" or not idx.flags.c_contiguous:
+            idx = np.ascontiguousarray(idx, dtype=np.int64)
         n = len(idx)
         self.origin = np.asarray(origin, dtype=np.float64).reshape(3)
         self.voxel_size = float(voxel_size)
@@ -106,26 +109,40 @@ class SceneFrame:
         surface = np.asarray(surface, dtype=bool).reshape(-1)
         surface = surface if surface.shape == (n,) else np.zeros(n, dtype=bool)
         colours = np.asarray(colours).reshape(-1, 3) if np.asarray(colours).size else np.zeros((0, 3), np.uint8)
-        labels = np.asarray(labels, dtype=np.int64).reshape(n)
+        labels = np.asarray(labels).reshape(n)
+        if labels.dtype.kind not in "iu":
+            labels = labels.astype(np.int64)
         self.has_colour = len(colours) == n and n > 0
         self.col_start = occupancy.col_start
-        if not columns.column_starts(idx, self.dims[0], self.dims[1], self.dims[2], self.col_start):
-            # the column index needs (x, y, z) order
-            order = np.argsort((idx[:, 0] * self.dims[1] + idx[:, 1]) * self.dims[2] + idx[:, 2], kind="stable")
+        self.col_run = occupancy.col_run
+        m = self._runs(idx)
+        if m < 0:   # the column index needs (x, y, z) order, each voxel once
+            key = (idx[:, 0].astype(np.int64) * self.dims[1] + idx[:, 1]) * self.dims[2] + idx[:, 2]
+            order = np.unique(key, return_index=True)[1]
             idx, surface, labels = idx[order], surface[order], labels[order]
             colours = colours[order] if self.has_colour else colours
-            columns.column_starts(idx, self.dims[0], self.dims[1], self.dims[2], self.col_start, False)
+            n = len(idx)
+            m = self._runs(idx)
         self.indices = idx
         self.surface = surface
         # colour bin of every voxel; -1 where the voxel has no colour (interior, uncoloured)
-        self.bins = np.full(n, -1, dtype=np.int64)
+        self.bins = np.full(n, -1, dtype=np.int32)
         if self.has_colour:
             coloured = self.surface if self.surface.any() else colours.any(axis=1)
             self.bins[coloured] = colour_bins(colours[coloured])
         self.labels = labels
+        self.run_label = labels[self.run_start[:-1]]
         self.features = np.asarray(features, dtype=np.float64).reshape(-1, 9)
         self.person = np.asarray(person, dtype=bool).reshape(-1)
         self._centres = None
+
+    def _runs(self, idx: np.ndarray) -> int:
+        n = len(idx)
+        start, z0, z1, col = np.empty(n + 1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+        m = columns.frame_runs(idx, self.dims[1], self.dims[2], self.col_start, self.col_run, start, z0, z1, col)
+        if m >= 0:
+            self.run_start, self.run_z0, self.run_z1, self.run_col = start[:m + 1], z0[:m], z1[:m], col[:m]
+        return m
 
     @property
     def n(self) -> int:

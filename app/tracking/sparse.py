@@ -95,7 +95,7 @@ class SparseTarget:
         surf = near[scene.surface[near]] if scene.surface.any() else near
         n = min(int(p.samples), len(surf))
         pick = self.rng.choice(surf, n, replace=False) if n else surf[:0]
-        self.samples = scene.indices[pick].copy()
+        self.samples = scene.indices[pick].astype(np.int64)
         self.weights = np.full(n, 1.0 / n) if n else np.zeros(0)
 
     def _fresh(self, scene: SceneFrame, k: int) -> np.ndarray:
@@ -111,7 +111,7 @@ class SparseTarget:
         if len(surf) == 0:
             return np.zeros((0, 3), dtype=np.int64)
         pick = self.rng.choice(surf, min(k, len(surf)), replace=False)
-        return scene.indices[pick]
+        return scene.indices[pick].astype(np.int64)
 
     @classmethod
     def step_all(cls, targets: list["SparseTarget"], scene: SceneFrame) -> None:
@@ -146,8 +146,8 @@ class SparseTarget:
         use_colour = self.colour and self.reference is not None
         ref = self.reference if use_colour else np.zeros(1)
         gamma = coverage_threshold(self.reference, p.coverage) if use_colour else 0.0
-        neighbourhood(samples, scene.col_start, scene.indices, *scene.dims, scene.bins, ref, gamma, use_colour,
-                      p.ss_radius, raw, col)                                  # Eq. 4.20-4.21
+        neighbourhood(samples, scene.col_run, scene.run_start, scene.run_z0, scene.run_z1, scene.dims[0],
+                      scene.dims[1], scene.bins, ref, gamma, use_colour, p.ss_radius, raw, col)   # Eq. 4.20-4.21
         w = p.lam * raw + (1 - p.lam) * col if use_colour else raw           # Eq. 4.19
         world = scene.origin + (samples + 0.5) * scene.voxel_size
         far = ((world[:, :2] - self.x[:2]) ** 2).sum(axis=1) > (p.alpha * p.sx) ** 2

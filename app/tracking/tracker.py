@@ -110,7 +110,7 @@ class MultiTracker:
         self.candidates: list[tuple[np.ndarray, int]] = []
         self.next_id = 1
         self.deleted = 0
-        self._labeller = None
+        self._col_first = None
         self._scratch = None
 
     # -- one frame --------------------------------------------------------------------
@@ -153,8 +153,9 @@ class MultiTracker:
         if self._scratch is None or len(self._scratch) < scene.components:
             self._scratch = np.zeros(max(scene.components, 64), dtype=np.int64)
         o = scene.origin
-        n, host = columns.disc_support(scene.col_start, scene.dims[0], scene.dims[1], o[0], o[1], scene.voxel_size,
-                                       float(x[0]), float(x[1]), float(r), scene.labels, self._scratch)
+        n, host = columns.disc_support(scene.col_run, scene.run_z0, scene.run_z1, scene.run_label, scene.dims[0],
+                                       scene.dims[1], o[0], o[1], scene.voxel_size, float(x[0]), float(x[1]), float(r),
+                                       self._scratch)
         return int(n), int(host)
 
     def _shares(self, scene: SceneFrame):
@@ -184,18 +185,27 @@ class MultiTracker:
             for g, (c, _) in enumerate(shared):
                 host_of[c] = g
             xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64)
-            k = len(groups)
-            mins = np.full((k, 3), np.iinfo(np.int64).max, dtype=np.int64)
-            maxs = np.full((k, 3), -1, dtype=np.int64)
-            sums = np.zeros((k, 3))
-            counts = np.zeros(k, dtype=np.int64)
-            columns.share_sums(scene.indices, scene.labels, scene.origin[0], scene.origin[1], scene.voxel_size,
-                               host_of, xs, groups, group_start, mins, maxs, sums, counts)
-            f = features_from_sums(mins, maxs, sums, counts, scene.origin, scene.voxel_size)
+            owner = np.empty(len(scene.run_label), dtype=np.int64)
+            columns.share_owners(scene.col_run, scene.run_label, scene.dims[0], scene.dims[1], scene.origin[0],
+                                 scene.origin[1], scene.voxel_size, host_of, xs, groups, group_start, owner)
+            runs = np.nonzero(owner >= 0)[0]
+            f = self._run_features(scene, runs, owner[runs], len(groups))
             verdict = self.classifier.predict(f[:, :len(CLASSIFIER_FEATURES)]).astype(bool)
             has = f[:, 8] > 0
             person[groups[has]] = verdict[has]
         return hosts, person, support
+
+    @staticmethod
+    def _run_features(scene: SceneFrame, runs: np.ndarray, part: np.ndarray, k: int) -> np.ndarray:
+        """Features (k, F) float32 of the voxels of ``runs`` grouped by ``part``, as
+        :func:`component_features` computes them over the voxels."""
+        mins = np.full((k, 3), np.iinfo(np.int64).max, dtype=np.int64)
+        maxs = np.full((k, 3), -1, dtype=np.int64)
+        sums = np.zeros((k, 3))
+        counts = np.zeros(k, dtype=np.int64)
+        columns.run_sums(runs, scene.run_z0, scene.run_z1, scene.run_col, scene.dims[1], part, k, mins, maxs, sums,
+                         counts)
+        return features_from_sums(mins, maxs, sums, counts, scene.origin, scene.voxel_size)
 
     def _delete(self, scene: SceneFrame) -> None:
         p = self.p
@@ -233,12 +243,12 @@ class MultiTracker:
             if k:
                 hosts.add(host)
         xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64).reshape(-1, 3)
-        free = np.empty(n, dtype=bool)
+        free = np.empty(len(scene.run_label), dtype=bool)
         o = scene.origin
-        columns.free_voxels(scene.col_start, scene.dims[0], scene.dims[1], o[0], o[1], scene.voxel_size, xs,
-                            float(p.claim_radius), scene.labels, scene.person, free)
-        free_at = np.nonzero(free)[0]
-        free_labels = scene.labels[free_at]
+        columns.free_runs(scene.col_run, scene.dims[0], scene.dims[1], o[0], o[1], scene.voxel_size, xs,
+                          float(p.claim_radius), scene.run_label, scene.person, free)
+        free_runs = np.nonzero(free)[0]
+        free_labels = scene.run_label[free_runs]
         found = []
         targets_xy = xs[:, :2]
         present = np.nonzero(np.bincount(free_labels, minlength=scene.components))[0]
@@ -250,17 +260,19 @@ class MultiTracker:
                 found.append(centre)
                 continue
             # the free pieces of a tracked component that look like a person
-            sel = free_at[free_labels == c]
-            if len(sel) * scene.voxel_size ** 3 * 1100.0 < 4 * p.min_support_kg:
+            runs = free_runs[free_labels == c]
+            size = int((scene.run_z1[runs] - scene.run_z0[runs] + 1).sum())
+            if size * scene.voxel_size ** 3 * 1100.0 < 4 * p.min_support_kg:
                 continue                                 # too little left for a person
-            pieces, k = self._labeller_of(scene)(scene.indices[sel])
-            feats = component_features(scene.indices[sel], pieces, k, scene.origin, scene.voxel_size).astype(np.float64)
+            pieces, k = self._run_pieces(scene, runs)
+            feats = self._run_features(scene, runs, pieces, k).astype(np.float64)
             if self.classifier is not None:
                 looks = self.classifier.predict(feats[:, :len(CLASSIFIER_FEATURES)])
             else:
                 looks = feats[:, 0] >= 4 * p.min_support_kg
             for j in np.nonzero(looks)[0]:
-                centre = scene.centres_at(sel[pieces == j]).mean(axis=0)
+                mine = runs[pieces == j]
+                centre = scene.centres_at(columns.run_positions(scene.run_start, mine)).mean(axis=0)
                 if len(targets_xy) and \
                         (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance_merged ** 2).any():
                     continue
@@ -290,13 +302,18 @@ class MultiTracker:
             self._centres = sums / np.maximum(counts, 1)[:, None]
         return self._centres[c].copy()
 
-    def _labeller_of(self, scene: SceneFrame):
-        """The labeller of the free pieces of merged components (26-connectivity)."""
-        from app.components import Labeller
+    def _run_pieces(self, scene: SceneFrame, runs: np.ndarray) -> tuple[np.ndarray, int]:
+        """Connected pieces (26-connectivity) of a subset of the frame's runs: the piece
+        of each run (numbered in run order) and their count."""
+        from app.components import label_runs
 
-        if self._labeller is None or self._labeller.dims != tuple(scene.dims):
-            self._labeller = Labeller(scene.dims)
-        return self._labeller
+        cols = scene.dims[0] * scene.dims[1]
+        if self._col_first is None or len(self._col_first) != cols:
+            self._col_first = np.full(cols, -1, dtype=np.int64)
+        pieces = np.empty(len(runs), dtype=np.int64)
+        k = label_runs(scene.run_z0[runs], scene.run_z1[runs], scene.run_col[runs], len(runs), scene.dims[1], 26,
+                       self._col_first, pieces)
+        return pieces, int(k)
 
     def _start(self, centre: np.ndarray) -> np.ndarray:
         x = centre.copy()
