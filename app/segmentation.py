@@ -6,6 +6,22 @@ improved Stauffer-Grimson) with a chromaticity/brightness shadow test: pixels it
 labels as shadow (value 127) are background here. A small morphological opening
 and closing removes speckle and fills pinholes.
 
+Beyond the thesis, each selectable (``SegmentationParams``; 0 = off, the thesis's
+MOG2 alone), measured against the simulator's true silhouettes with
+``smartroom bench segmentation`` (docs/benchmarks.md, "Masks against true
+silhouettes"):
+
+- ``shadow_floor``: dark shadows. MOG2 keeps as foreground the contact shadows at the
+  feet, darker than its ``tau`` (0.5); pixels of the floor (:func:`floor_region`)
+  whose colour is the background's darkened down to ``shadow_floor`` within
+  ``shadow_residual`` grey levels are shadow too, except next to (3x3) what stays
+  foreground (the feet and legs standing in that shadow).
+- ``fill_holes``: holes enclosed by a silhouette up to an area (stripes of clothing
+  close to the room's colour) are filled.
+- ``second_chance``: a pixel next to the foreground that differs from the background
+  by more than ``second_chance`` grey levels (below MOG2's own threshold, about 15.5
+  with its initial variance) is foreground too (hysteresis at the outline).
+
 Speed: the mask is computed at ``1/scale`` of the camera resolution, a resolution
 matched to the projected footprint of the reconstruction's voxels
 (:func:`matched_scale`: half size for 2 cm voxels, quarter size for 4 cm, in the
@@ -26,8 +42,9 @@ import cv2
 import numpy as np
 from numba import njit
 
-__all__ = ["SegmentationParams", "CameraSegmenter", "estimate_background", "estimate_background_robust", "working_size",
-           "matched_scale", "shrink", "YuvBackground"]
+__all__ = ["SegmentationParams", "CameraSegmenter", "camera_segmenter", "floor_region", "fill_holes",
+           "estimate_background", "estimate_background_robust", "working_size", "matched_scale", "shrink",
+           "YuvBackground"]
 
 
 @dataclass
@@ -41,6 +58,11 @@ class SegmentationParams:
     bootstrap: int = 100            # frames at the automatic rate when there is no background image
     open_px: int = 0                # opening kernel (removes speckle, and thin limbs); 0 = none
     close_px: int = 5               # closing kernel (fills holes); 0 = none
+    shadow_floor: float = 0.0       # also shadow: down to this brightness ratio, background colour scaled; 0 = off
+    shadow_residual: float = 8.0    # ... when the colour is within this many grey levels of the scaled background
+    fill_holes: int = 0             # fill holes in the foreground up to this area (full-size pixels); 0 = none
+    second_chance: float = 0.0      # a pixel next to the foreground that differs from the background by more
+                                    # than this (grey levels, Euclidean over BGR) is foreground too; 0 = off
 
     @classmethod
     def from_params(cls, params: dict) -> "SegmentationParams":
@@ -139,11 +161,76 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
     return background, float(uncertain.mean())
 
 
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+_SQUARE = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
+_NOWHERE = np.zeros((1, 1), dtype=np.uint8)
+
+
+@njit(cache=True, nogil=True)
+def _shadow_and_weak(image, reference, raw, region, floor, residual2, weak2, fg, weak):
+    """Per pixel of MOG2's labels ``raw`` (255 foreground, 127 shadow, 0 background):
+    ``fg`` = foreground that is not a shadow, ``weak`` = not a shadow and farther than
+    ``sqrt(weak2)`` grey levels from the background ``reference`` (BGR, Euclidean).
+
+    The shadow test is the brightness / colour distortion test MOG2 uses (after
+    Horprasert et al. 1999; the thesis' §2.2.3 removes shadows with Landabaso et al.'s
+    variant): brightness ratio ``a = <x, b> / <b, b>`` and colour distortion
+    ``|x - a b|``, here with the distortion bounded in absolute grey levels
+    (``sqrt(residual2)``: sensor noise is additive) instead of MOG2's bound scaled by
+    ``a^2``, which gives up on shadows darker than MOG2's ``tau`` (contact shadows at
+    the feet). It applies to the pixels MOG2 calls foreground where ``region`` is set
+    (the floor), with ``floor <= a < 1``."""
+    h, w = raw.shape
+    for y in range(h):
+        for x in range(w):
+            r = raw[y, x]
+            b0 = np.float32(reference[y, x, 0])
+            b1 = np.float32(reference[y, x, 1])
+            b2 = np.float32(reference[y, x, 2])
+            x0 = np.float32(image[y, x, 0])
+            x1 = np.float32(image[y, x, 1])
+            x2 = np.float32(image[y, x, 2])
+            shadow = r == 127
+            if r == 255 and floor > 0 and region[min(y, region.shape[0] - 1), min(x, region.shape[1] - 1)]:
+                bb = b0 * b0 + b1 * b1 + b2 * b2
+                if bb > 400.0:
+                    a = (x0 * b0 + x1 * b1 + x2 * b2) / bb
+                    if floor <= a < 1.0:
+                        d0, d1, d2 = x0 - a * b0, x1 - a * b1, x2 - a * b2
+                        shadow = d0 * d0 + d1 * d1 + d2 * d2 <= residual2
+            fg[y, x] = 1 if (r == 255 and not shadow) else 0
+            if shadow or weak2 <= 0:
+                weak[y, x] = 0
+            else:
+                d0, d1, d2 = x0 - b0, x1 - b1, x2 - b2
+                weak[y, x] = 1 if d0 * d0 + d1 * d1 + d2 * d2 > weak2 else 0
+
+
+def fill_holes(mask: np.ndarray, max_area: int) -> np.ndarray:
+    """Fill, in place, the holes of a uint8 0/1 ``mask`` (background regions enclosed by
+    foreground, 4-connected, not touching the image border) of at most ``max_area``
+    pixels: stripes of clothing close to the room's colour, not the gap between an arm
+    and the body (larger)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(1 - mask, connectivity=4)
+    if n <= 1:
+        return mask
+    h, w = mask.shape
+    x, y, bw, bh, area = (stats[:, i] for i in range(5))
+    small = (area <= max_area) & (x > 0) & (y > 0) & (x + bw < w) & (y + bh < h)
+    small[0] = False   # label 0: the foreground itself
+    if small.any():
+        mask[small[labels]] = 1
+    return mask
+
+
 class CameraSegmenter:
     """Mixture-of-Gaussians background model of one camera."""
 
-    def __init__(self, params: SegmentationParams, background: np.ndarray | None = None):
+    def __init__(self, params: SegmentationParams, background: np.ndarray | None = None,
+                 shadow_region: np.ndarray | None = None):
         self.params = params
+        # where the dark-shadow test applies (bool at the mask size, e.g. :func:`floor_region`); None: nowhere
+        self.shadow_region = None if shadow_region is None else np.ascontiguousarray(shadow_region, dtype=np.uint8)
         self.model = cv2.createBackgroundSubtractorMOG2(
             history=params.history, varThreshold=params.var_threshold, detectShadows=params.shadows)
         if params.shadows:
@@ -153,6 +240,7 @@ class CameraSegmenter:
         self.trained = False
         self.frames = 0
         self.small: np.ndarray | None = None   # the last frame at the mask's size
+        self.reference: np.ndarray | None = None   # MOG2's background image (shadow test, second chance)
         if background is not None:
             self.learn_background([background])
 
@@ -170,12 +258,57 @@ class CameraSegmenter:
         rate = -1.0 if fast else self.params.learning_rate
         self.small = shrink(image, self.params.scale // prescaled)
         raw = self.model.apply(self.small, learningRate=rate)
-        fg = (raw == 255).astype(np.uint8)
+        p = self.params
+        if p.shadow_floor > 0 or p.second_chance > 0:
+            if self.reference is None or self.frames % 10 == 0 or fast:
+                self.reference = self.model.getBackgroundImage()
+            fg = np.empty(raw.shape, dtype=np.uint8)
+            weak = np.empty(raw.shape, dtype=np.uint8)
+            region = self.shadow_region if self.shadow_region is not None else _NOWHERE
+            _shadow_and_weak(self.small, self.reference, raw, region, np.float32(p.shadow_floor),
+                             np.float32(p.shadow_residual ** 2), np.float32(p.second_chance ** 2), fg, weak)
+            if p.shadow_floor > 0:   # feet stand in their own contact shadow: keep the outline of what stays
+                fg |= cv2.dilate(fg, _SQUARE) & (raw == 255)
+            if p.second_chance > 0:
+                fg |= cv2.dilate(fg, _CROSS) & weak
+        else:
+            fg = (raw == 255).astype(np.uint8)
         if self._open is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._open)
         if self._close is not None:
             fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._close)
+        if p.fill_holes > 0:
+            fill_holes(fg, max(1, p.fill_holes // (p.scale * p.scale)))
         return fg.view(bool)
+
+
+def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01) -> np.ndarray:
+    """The pixels (bool, at ``1/scale`` of the camera's size) where the room's floor
+    (z = 0 inside the room's bounds) is in view, furniture ignored: where a person's
+    cast shadow can fall (the dark-shadow test of :class:`CameraSegmenter`)."""
+    w, h = working_size(camera.width, camera.height, scale)
+    xs = np.arange(room_min[0], room_max[0] + step / 2, step)
+    ys = np.arange(room_min[1], room_max[1] + step / 2, step)
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    uv = camera.project(pts) / scale
+    ok = np.isfinite(uv).all(axis=1)
+    u, v = np.floor(uv[ok, 0]).astype(np.int64), np.floor(uv[ok, 1]).astype(np.int64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    out = np.zeros((h, w), dtype=np.uint8)
+    out[v[inside], u[inside]] = 1
+    out = cv2.morphologyEx(out, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3)))
+    return out.view(bool)
+
+
+def camera_segmenter(params: SegmentationParams, background: np.ndarray | None, calibration=None,
+                     camera: str | None = None) -> "CameraSegmenter":
+    """A camera's segmenter; with the dark-shadow test on (``shadow_floor`` > 0) and a
+    calibration, the test is limited to the pixels that see the floor."""
+    region = None
+    if params.shadow_floor > 0 and calibration is not None and camera is not None:
+        region = floor_region(calibration.camera(camera), calibration.room_min, calibration.room_max, params.scale)
+    return CameraSegmenter(params, background, shadow_region=region)
 
 
 def matched_scale(calibration, voxel_size: float, pixels: float = 1.25) -> int:

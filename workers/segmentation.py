@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from app.messages import Frame, Mask
 from app.recording import Recording
-from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background_robust, matched_scale, shrink
+from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmenter, estimate_background_robust,
+                              matched_scale, shrink)
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
@@ -48,12 +49,18 @@ class Segmentation(Worker):
         "bootstrap": 100,            # frames at the automatic rate without a background image
         "open_px": 0,
         "close_px": 5,
+        "shadow_floor": 0.0,         # dark shadows on the floor down to this brightness ratio (0: MOG2's test only)
+        "shadow_residual": 8.0,      # ... colour within this many grey levels of the darkened background
+        "fill_holes": 0,             # fill holes in a silhouette up to this area (full-size pixels; 0: none)
+        "second_chance": 0.0,        # pixels next to the foreground farther than this from the background (0: off)
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
     }
     RANGES = {"scale": (0, 16), "history": (1, 100000), "var_threshold": (0.1, 10000.0),
               "shadow_threshold": (0.0, 1.0), "learning_rate": (-1.0, 1.0), "bootstrap": (0, 100000),
-              "open_px": (0, 99), "close_px": (0, 99), "colour_scale": (-1, 16), "median_frames": (1, 1000)}
+              "open_px": (0, 99), "close_px": (0, 99), "colour_scale": (-1, 16), "median_frames": (1, 1000),
+              "shadow_floor": (0.0, 1.0), "shadow_residual": (0.0, 255.0), "fill_holes": (0, 10 ** 7),
+              "second_chance": (0.0, 255.0)}
 
     def setup(self) -> None:
         from calibration import load_calibration
@@ -62,6 +69,7 @@ class Segmentation(Worker):
         self.recording = Recording(run.recording) if run.recording else None
         calib = self.recording.calibration if self.recording else (load_calibration(run.calibration)
                                                                     if run.calibration else None)
+        self.calibration = calib
         self.known_cameras = list(calib.names) if calib is not None else None
         for cam in self.cameras() or []:
             if calib is not None:
@@ -90,7 +98,7 @@ class Segmentation(Worker):
     def _segmenter(self, cam: str) -> CameraSegmenter:
         seg = self.segmenters.get(cam)
         if seg is None:
-            seg = self.segmenters[cam] = CameraSegmenter(self.seg_params, self._background(cam))
+            seg = self.segmenters[cam] = camera_segmenter(self.seg_params, self._background(cam), self.calibration, cam)
         return seg
 
     def admit(self, key: str, msg: Frame) -> str | None:
