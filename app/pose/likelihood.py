@@ -22,6 +22,9 @@ every particle; the (cheap) combination into log-weights is numpy.
 """
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
 
@@ -29,7 +32,7 @@ from app.pose.flesh import PART, PARTS, Flesh
 from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
 from app.pose.observation import Observation
 
-__all__ = ["Scorer", "SIGMA2", "part_variances", "log_likelihood", "score_particles"]
+__all__ = ["Scorer", "SIGMA2", "part_variances", "log_likelihood", "score_particles", "Lut", "kernel_lut"]
 
 #: Base variances (sigma_Out^2, sigma_DO^2, sigma_Empty^2, sigma_Surf^2), §6.5.1.2.
 SIGMA2 = np.array([0.01, 0.01, 0.1, 0.1])
@@ -46,110 +49,185 @@ def part_variances() -> np.ndarray:
     return v
 
 
-@njit(cache=True, nogil=True)
-def _cell(v, lo, inv, n):
-    """Cell index of coordinate ``v`` along an axis (-1 outside), without np.floor."""
-    f = (v - lo) * inv
-    if f < 0.0:
-        return -1
-    i = int(f)
-    return i if i < n else -1
+#: The surface sum of Eq. 6.16 adds ``1 - prox`` in fixed point (integers of 2^-40):
+#: exact, hence the same in any order, for the float32 proximities of
+#: :mod:`app.pose.observation` (>= 2^-17 or 0: its Gaussian is cut at 2 sigma), and
+#: integer sums do not wait on each other as a chain of float additions does.
+_FIXED = float(2 ** 40)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _place(lx, ly, lz, m0, m1, R, O, s, origin, inv, dims, dinv, do_dims, room_lo, room_hi, sentinel, box,
+           room_test, do_test, cell, do_cell):
+    """Moves the LUT points ``m0:m1`` of one part (segment ``s``) to the particle's pose:
+    the data cell of each (``sentinel``, an empty cell, outside the box) into ``cell``,
+    and if ``do_test`` its double-occupancy cell (-1 outside ``box``, the cells where
+    another part may be) into ``do_cell``; returns how many lie outside the room (0
+    without ``room_test``). Branch-free over structure-of-arrays coordinates, so LLVM
+    vectorises it (the loop runs on unsigned indices: no negative-index wraparound,
+    which would stop that; the two tests are loop-invariant, so it is unswitched)."""
+    X, Y, Z = dims[0], dims[1], dims[2]
+    DY, DZ = do_dims[1], do_dims[2]
+    r00, r01, r02 = R[s, 0, 0], R[s, 0, 1], R[s, 0, 2]
+    r10, r11, r12 = R[s, 1, 0], R[s, 1, 1], R[s, 1, 2]
+    r20, r21, r22 = R[s, 2, 0], R[s, 2, 1], R[s, 2, 2]
+    o0, o1, o2 = O[s, 0], O[s, 1], O[s, 2]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    rx0, ry0, rz0 = room_lo[0], room_lo[1], room_lo[2]
+    rx1, ry1, rz1 = room_hi[0], room_hi[1], room_hi[2]
+    a0, a1, b0, b1, c0, c1 = box[0], box[1], box[2], box[3], box[4], box[5]
+    n_out = 0
+    for m in range(np.uint64(m0), np.uint64(m1)):
+        x = o0 + r00 * lx[m] + r01 * ly[m] + r02 * lz[m]
+        y = o1 + r10 * lx[m] + r11 * ly[m] + r12 * lz[m]
+        z = o2 + r20 * lx[m] + r21 * ly[m] + r22 * lz[m]
+        if room_test:
+            n_out += np.int64((x < rx0) | (y < ry0) | (z < rz0) | (x > rx1) | (y > ry1) | (z > rz1))
+        tx, ty, tz = x - ox, y - oy, z - oz
+        fi, fj, fl = tx * inv, ty * inv, tz * inv
+        inside = (fi >= 0.0) & (fj >= 0.0) & (fl >= 0.0) & (fi < X) & (fj < Y) & (fl < Z)
+        # (an index computed from a coordinate outside is discarded by the select)
+        c = (np.int64(fi) * Y + np.int64(fj)) * Z + np.int64(fl)
+        cell[m] = c if inside else sentinel
+        if do_test:
+            fa, fb, fc = tx * dinv, ty * dinv, tz * dinv
+            near = (fa >= a0) & (fb >= b0) & (fc >= c0) & (fa < a1) & (fb < b1) & (fc < c1)
+            d = (np.int64(fa) * DY + np.int64(fb)) * DZ + np.int64(fc)
+            do_cell[m] = d if near else -1
+    return n_out
 
 
 @njit(cache=True, nogil=True)
-def score_particles(states, height, pts, seg, part, surf, active, n_parts,
-                    occ, prox, origin, vsize, room_lo, room_hi,
-                    do_stamp, do_owner, do_multi, do_origin, do_size, token0, out,
-                    seg_parent, seg_offset, dof_segment, dof_axis):
+def _part_boxes(on, n_on, R, O, part_segment, part_centre, part_half, origin, dinv, do_dims, room_lo, room_hi,
+                cbox, box, in_room):
+    """Per active part: whether all its points are inside the room (``in_room``, no
+    per-point test then), and the box (double-occupancy cells, ``[lo, hi)`` per axis)
+    outside which none of its points can share a cell with another part: the bounding
+    box of its intersections with the other parts' boxes (each part's box from its
+    LUT's bounds moved to the pose, widened by 1e-6 m against rounding). Empty box:
+    lo >= hi."""
+    for t in range(n_on):
+        q = on[t]
+        s = part_segment[q]
+        inside = True
+        for i in range(3):
+            cen = O[s, i] + R[s, i, 0] * part_centre[q, 0] + R[s, i, 1] * part_centre[q, 1] \
+                + R[s, i, 2] * part_centre[q, 2]
+            half = abs(R[s, i, 0]) * part_half[q, 0] + abs(R[s, i, 1]) * part_half[q, 1] \
+                + abs(R[s, i, 2]) * part_half[q, 2] + 1e-6
+            inside = inside and cen - half > room_lo[i] and cen + half < room_hi[i]
+            cbox[q, 2 * i] = max(math.floor((cen - half - origin[i]) * dinv), 0.0)
+            cbox[q, 2 * i + 1] = min(math.floor((cen + half - origin[i]) * dinv) + 1.0, float(do_dims[i]))
+            box[q, 2 * i] = 1e30
+            box[q, 2 * i + 1] = -1e30
+        in_room[q] = inside
+    for t in range(n_on):
+        q = on[t]
+        for u in range(t + 1, n_on):
+            r = on[u]
+            lo0, hi0 = max(cbox[q, 0], cbox[r, 0]), min(cbox[q, 1], cbox[r, 1])
+            lo1, hi1 = max(cbox[q, 2], cbox[r, 2]), min(cbox[q, 3], cbox[r, 3])
+            lo2, hi2 = max(cbox[q, 4], cbox[r, 4]), min(cbox[q, 5], cbox[r, 5])
+            if lo0 >= hi0 or lo1 >= hi1 or lo2 >= hi2:
+                continue
+            for p in (q, r):
+                box[p, 0], box[p, 1] = min(box[p, 0], lo0), max(box[p, 1], hi0)
+                box[p, 2], box[p, 3] = min(box[p, 2], lo1), max(box[p, 3], hi1)
+                box[p, 4], box[p, 5] = min(box[p, 4], lo2), max(box[p, 5], hi2)
+
+
+@njit(cache=True, nogil=True)
+def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_surface, part_centre, part_half,
+                    active, need, occ, prox, sentinel, dims, origin, vsize, room_lo, room_hi,
+                    do_stamp, do_dims, do_size, token0, out, seg_parent, seg_offset, dof_segment, dof_axis):
     """Scores ``out (P, Q, 5)`` = (outside, double, occupied, surface-miss, surface count)
     *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``.
 
-    Pass 1 moves every LUT point to the particle's pose, scores outside / occupancy /
-    surface and stamps the double-occupancy grid (cell -> the first part there, and
-    whether another part came too); pass 2 counts each part's points in shared cells.
-    The LUT is grouped by part (one segment each), so a part's rotation and origin
-    stay in registers and its counts in locals."""
+    The LUT (:class:`Lut`) is in structure-of-arrays form ``lx, ly, lz``, grouped by
+    part (``part_start``), each part's surface points first. ``occ`` (uint8) and
+    ``prox`` (float32) are the observation grids flattened, with ``sentinel`` the
+    index of a cell empty in both (where points outside the box look).
+    Per particle: forward kinematics of the ``need``-ed segments only, the parts'
+    :func:`_part_boxes`; per active part: every point placed (:func:`_place`,
+    vectorised), occupancy and surface gathered, and the double-occupancy grid
+    ``do_stamp`` stamped by the points in the part's box, one int64 per cell packing
+    ``token * 32 + 2 * part + shared`` (a cell stamped by an earlier particle has a
+    smaller token, so the grid is never cleared); last, each part that met another
+    counts its points in shared cells (Eq. 6.14)."""
     S = seg_parent.shape[0]
-    R = np.empty((S, 3, 3))
-    O = np.empty((S, 3))
-    M = pts.shape[0]
-    cells = np.empty(M, dtype=np.int64)
-    X, Y, Z = occ.shape
-    DX, DY, DZ = do_stamp.shape
-    flat_stamp = do_stamp.reshape(-1)
-    flat_owner = do_owner.reshape(-1)
-    flat_multi = do_multi.reshape(-1)
+    Q = part_start.shape[0] - 1
+    R = np.zeros((S, 3, 3))
+    O = np.zeros((S, 3))
+    M = lx.shape[0]
+    cell = np.empty(M, dtype=np.int64)
+    do_cell = np.empty(M, dtype=np.int64)
     inv = 1.0 / vsize
     dinv = 1.0 / do_size
-    # part ranges of the (part-sorted) LUT
-    starts = np.zeros(n_parts + 1, dtype=np.int64)
-    for m in range(M):
-        starts[part[m] + 1] += 1
-    for q in range(n_parts):
-        starts[q + 1] += starts[q]
+    involved = np.zeros(Q, dtype=np.bool_)
+    cbox = np.empty((Q, 6))
+    box = np.empty((Q, 6))
+    in_room = np.zeros(Q, dtype=np.bool_)
+    on = np.empty(Q, dtype=np.int64)
+    n_on = 0
+    for q in range(Q):
+        if active[q] and part_start[q + 1] > part_start[q]:
+            on[n_on] = q
+            n_on += 1
     for k in range(states.shape[0]):
-        token = token0 + k
-        fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O)
+        token = (token0 + k) * 32
+        fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O, need)
+        _part_boxes(on, n_on, R, O, part_segment, part_centre, part_half, origin, dinv, do_dims, room_lo, room_hi,
+                    cbox, box, in_room)
         shared = False
-        for q in range(n_parts):
+        for q in range(Q):
+            involved[q] = False
             for c in range(5):
                 out[k, q, c] = 0.0
-            m0, m1 = starts[q], starts[q + 1]
-            if not active[q] or m1 <= m0:
-                for m in range(m0, m1):
-                    cells[m] = -1
-                continue
-            s = seg[m0]
-            r00, r01, r02 = R[s, 0, 0], R[s, 0, 1], R[s, 0, 2]
-            r10, r11, r12 = R[s, 1, 0], R[s, 1, 1], R[s, 1, 2]
-            r20, r21, r22 = R[s, 2, 0], R[s, 2, 1], R[s, 2, 2]
-            o0, o1, o2 = O[s, 0], O[s, 1], O[s, 2]
-            n_out = 0.0
-            n_occ = 0.0
-            n_miss = 0.0
-            n_surf = 0.0
-            for m in range(m0, m1):
-                px, py, pz = pts[m, 0], pts[m, 1], pts[m, 2]
-                x = o0 + r00 * px + r01 * py + r02 * pz
-                y = o1 + r10 * px + r11 * py + r12 * pz
-                z = o2 + r20 * px + r21 * py + r22 * pz
-                if x < room_lo[0] or y < room_lo[1] or z < room_lo[2] or x > room_hi[0] or y > room_hi[1] \
-                        or z > room_hi[2]:
-                    n_out += 1.0
-                i = _cell(x, origin[0], inv, X)
-                j = _cell(y, origin[1], inv, Y)
-                l = _cell(z, origin[2], inv, Z)
-                inside = i >= 0 and j >= 0 and l >= 0
-                if inside and occ[i, j, l] != 0:
-                    n_occ += 1.0
-                if surf[m]:
-                    n_surf += 1.0
-                    n_miss += 1.0 - (prox[i, j, l] if inside else 0.0)
-                a = _cell(x, do_origin[0], dinv, DX)
-                b = _cell(y, do_origin[1], dinv, DY)
-                c = _cell(z, do_origin[2], dinv, DZ)
-                if a >= 0 and b >= 0 and c >= 0:
-                    f = (a * DY + b) * DZ + c
-                    cells[m] = f
-                    if flat_stamp[f] != token:
-                        flat_stamp[f] = token
-                        flat_owner[f] = q
-                        flat_multi[f] = 0
-                    elif flat_owner[f] != q:
-                        flat_multi[f] = 1
-                        shared = True
-                else:
-                    cells[m] = -1
+        for t in range(n_on):
+            q = on[t]
+            m0, m1 = part_start[q], part_start[q + 1]
+            ms = m0 + part_surface[q]
+            stamp = box[q, 0] < box[q, 1]
+            n_out = _place(lx, ly, lz, m0, m1, R, O, part_segment[q], origin, inv, dims, dinv, do_dims,
+                           room_lo, room_hi, sentinel, box[q], not in_room[q], stamp, cell, do_cell)
+            n_occ = 0
+            n_miss = 0
+            for m in range(np.uint64(m0), np.uint64(ms)):
+                c = cell[m]
+                n_occ += np.int64(occ[c] != 0)
+                n_miss += np.int64((1.0 - prox[c]) * _FIXED)
+            for m in range(np.uint64(ms), np.uint64(m1)):
+                n_occ += np.int64(occ[cell[m]] != 0)
             out[k, q, 0] = n_out
             out[k, q, 2] = n_occ
-            out[k, q, 3] = n_miss
-            out[k, q, 4] = n_surf
+            out[k, q, 3] = n_miss / _FIXED
+            out[k, q, 4] = part_surface[q]
+            if not stamp:
+                continue
+            mine = token + 2 * q
+            for m in range(np.uint64(m0), np.uint64(m1)):
+                f = do_cell[m]
+                if f >= 0:
+                    code = do_stamp[f]
+                    if code < token:
+                        do_stamp[f] = mine
+                    elif (code | 1) != (mine | 1):
+                        if code & 1 == 0:
+                            do_stamp[f] = code | 1
+                            involved[(code >> 1) & 15] = True
+                        involved[q] = True
+                        shared = True
         if not shared:
             continue
-        for m in range(M):
-            f = cells[m]
-            if f >= 0 and flat_multi[f] != 0:
-                out[k, part[m], 1] += 1.0
+        for q in range(Q):
+            if not involved[q]:
+                continue
+            n = 0
+            for m in range(np.uint64(part_start[q]), np.uint64(part_start[q + 1])):
+                f = do_cell[m]
+                if f >= 0 and do_stamp[f] & 1:
+                    n += 1
+            out[k, q, 1] = n
 
 
 def normalise(counts: np.ndarray, flesh: Flesh) -> np.ndarray:
@@ -180,16 +258,65 @@ def log_likelihood(scores: np.ndarray, flesh: Flesh, active: np.ndarray, mode: s
     raise ValueError(f"likelihood must be 'partitioned' or 'global', not {mode!r}")
 
 
+@dataclass
+class Lut:
+    """The flesh's LUT in the kernel's layout: coordinates as three contiguous arrays,
+    grouped by part with each part's surface points first (both stable, so the order
+    within a group is the flesh's), and per part its first point, segment, surface
+    count and the centre and half extent of its points (segment-local)."""
+
+    lx: np.ndarray
+    ly: np.ndarray
+    lz: np.ndarray
+    part_start: np.ndarray    # (Q + 1,)
+    part_segment: np.ndarray  # (Q,)
+    part_surface: np.ndarray  # (Q,)
+    part_centre: np.ndarray   # (Q, 3)
+    part_half: np.ndarray     # (Q, 3)
+    part_needs: np.ndarray    # (Q, S) bool: the segments whose pose the part needs
+
+
+def kernel_lut(flesh: Flesh) -> Lut:
+    Q = len(PARTS)
+    order = np.lexsort((~flesh.surface, flesh.part))
+    pts = flesh.points[order]
+    part = flesh.part[order]
+    start = np.zeros(Q + 1, dtype=np.int64)
+    start[1:] = np.cumsum(np.bincount(part, minlength=Q))
+    segment = np.zeros(Q, dtype=np.int64)
+    centre, half = np.zeros((Q, 3)), np.zeros((Q, 3))
+    needs = np.zeros((Q, len(SEG_PARENT)), dtype=np.bool_)
+    for q in range(Q):
+        if start[q + 1] == start[q]:
+            continue
+        segs = np.unique(flesh.segment[order][start[q]:start[q + 1]])
+        if len(segs) != 1:
+            raise ValueError(f"body part {PARTS[q]} spans {len(segs)} segments; the kernel needs one")
+        segment[q] = segs[0]
+        lo, hi = pts[start[q]:start[q + 1]].min(axis=0), pts[start[q]:start[q + 1]].max(axis=0)
+        centre[q], half[q] = (lo + hi) / 2, (hi - lo) / 2
+        s = segment[q]
+        while s >= 0:
+            needs[q, s] = True
+            s = SEG_PARENT[s]
+    surface = np.bincount(part[flesh.surface[order]], minlength=Q).astype(np.int64)
+    return Lut(*(np.ascontiguousarray(pts[:, i]) for i in range(3)), start, segment, surface, centre, half, needs)
+
+
 class Scorer:
     """Evaluates particles of one person's body against one observation at a time."""
 
     def __init__(self, flesh: Flesh, mode: str = "partitioned"):
         if mode not in ("partitioned", "global"):
             raise ValueError(f"likelihood must be 'partitioned' or 'global', not {mode!r}")
+        if len(PARTS) > 16:
+            raise ValueError("the double-occupancy stamp packs the part in 4 bits")
         self.flesh = flesh
         self.mode = mode
         self.obs: Observation | None = None
+        self.lut = kernel_lut(flesh)
         self._token = 1
+        self._stamp = None
         self.evaluations = 0
 
     def set_observation(self, obs: Observation) -> None:
@@ -197,21 +324,38 @@ class Scorer:
         h = self.flesh.spacing
         span = obs.occ.shape[0] * obs.voxel_size, obs.occ.shape[1] * obs.voxel_size, obs.occ.shape[2] * obs.voxel_size
         dims = tuple(int(np.ceil(v / h)) + 1 for v in span)
-        if getattr(self, "_do", None) is None or self._do[0].shape != dims:
-            self._do = (np.zeros(dims, np.int64), np.zeros(dims, np.int16), np.zeros(dims, np.uint8))
+        if self._stamp is None or tuple(self._do_dims) != dims:
+            self._stamp = np.zeros(int(np.prod(dims)), np.int64)
+            self._do_dims = np.array(dims, dtype=np.int64)
             self._token = 1
-        self._do_origin = obs.origin.astype(np.float64)
+        self._origin = np.asarray(obs.origin, dtype=np.float64)
+        self._dims = np.array(obs.occ.shape, dtype=np.int64)
+        occ, prox = np.ravel(obs.occ), np.ravel(obs.prox)
+        # the cell where points outside the box look: empty in both grids (the box's
+        # margin makes its first cell one; otherwise the first such cell, or one added)
+        if occ[0] == 0 and prox[0] == 0:
+            sentinel = 0
+        else:
+            empty = np.flatnonzero((occ == 0) & (prox == 0))
+            if len(empty):
+                sentinel = int(empty[0])
+            else:
+                occ, prox = np.append(occ, np.uint8(0)), np.append(prox, np.float32(0))
+                sentinel = len(occ) - 1
+        self._occ, self._prox, self._sentinel = occ, prox, sentinel
 
     def counts(self, states: np.ndarray, active=None) -> np.ndarray:
-        obs, f = self.obs, self.flesh
+        obs, f, lut = self.obs, self.flesh, self.lut
         Q = len(PARTS)
         act = np.ones(Q, dtype=np.bool_) if active is None else np.asarray(active, dtype=np.bool_)
         states = np.ascontiguousarray(states, dtype=np.float64)
         out = np.empty((len(states), Q, 5))
-        stamp, owner, multi = self._do
-        score_particles(states, f.height, f.points, f.segment, f.part, f.surface, act, Q,
-                        obs.occ, obs.prox, obs.origin, obs.voxel_size, obs.room_lo, obs.room_hi,
-                        stamp, owner, multi, self._do_origin, f.spacing, self._token, out,
+        need = lut.part_needs[act].any(axis=0)
+        score_particles(states, f.height, lut.lx, lut.ly, lut.lz, lut.part_start, lut.part_segment,
+                        lut.part_surface, lut.part_centre, lut.part_half, act, need,
+                        self._occ, self._prox, self._sentinel, self._dims, self._origin, obs.voxel_size,
+                        np.asarray(obs.room_lo, np.float64), np.asarray(obs.room_hi, np.float64),
+                        self._stamp, self._do_dims, f.spacing, self._token, out,
                         SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS)
         self._token += len(states)
         self.evaluations += len(states)

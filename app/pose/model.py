@@ -138,15 +138,55 @@ def _exp_into(theta, wx, wy, wz, out):
     out[2, 2] = 1.0 + c * (-wy * wy - wx * wx)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _unit_axis(wx, wy, wz):
+    """0, 1 or 2 when ``omega`` is +-x, +-y or +-z (every DoF of Table 6.1), else -1."""
+    if wy == 0.0 and wz == 0.0 and abs(wx) == 1.0:
+        return 0
+    if wx == 0.0 and wz == 0.0 and abs(wy) == 1.0:
+        return 1
+    if wx == 0.0 and wy == 0.0 and abs(wz) == 1.0:
+        return 2
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rotate_about_axis(R, s, k, sign, theta):
+    """``R[s] <- R[s] exp(theta [sign e_k]x)`` for a coordinate axis: the two columns of
+    the rotation plane ``a < b`` only. Each entry is the same floating-point sum as the
+    general product with :func:`_exp_into`'s matrix (whose other entries are exact 0
+    and 1, which add nothing), so the results are identical; it saves the product's
+    zero terms."""
+    sn = math.sin(theta) * sign
+    c = 1.0 - math.cos(theta)
+    e = 1.0 + c * -1.0                     # _exp_into's diagonal entries of the plane
+    if k == 0:
+        a, b, e_ab, e_ba = 1, 2, -sn, sn
+    elif k == 1:
+        a, b, e_ab, e_ba = 0, 2, sn, -sn
+    else:
+        a, b, e_ab, e_ba = 0, 1, -sn, sn
+    for i in range(3):
+        ra, rb = R[s, i, a], R[s, i, b]
+        R[s, i, a] = ra * e + rb * e_ba
+        R[s, i, b] = ra * e_ab + rb * e
+
+
 @njit(cache=True, nogil=True)
-def fk_segments(y, height, seg_parent, seg_offset, dof_segment, dof_axis, R, O):
+def fk_segments(y, height, seg_parent, seg_offset, dof_segment, dof_axis, R, O, need=None):
     """Forward kinematics of one state ``y`` (Eq. 6.1): segment rotations ``R (S, 3, 3)``
-    (columns: local axes in the world) and origins ``O (S, 3)``, filled in place."""
+    (columns: local axes in the world) and origins ``O (S, 3)``, filled in place.
+    ``need (S,)`` bool, if given, limits it to those segments (each with its ancestors
+    set too): the others and their DoFs' sines and cosines are skipped, untouched."""
     E = np.empty((3, 3))
     T = np.empty((3, 3))
     d = FIRST_ROT
     n_dof = y.shape[0]
     for s in range(seg_parent.shape[0]):
+        if need is not None and not need[s]:
+            while d < n_dof and dof_segment[d] == s:
+                d += 1
+            continue
         p = seg_parent[s]
         if p < 0:
             for i in range(3):
@@ -160,7 +200,13 @@ def fk_segments(y, height, seg_parent, seg_offset, dof_segment, dof_axis, R, O):
                 for j in range(3):
                     R[s, i, j] = R[p, i, j]
         while d < n_dof and dof_segment[d] == s:
-            _exp_into(y[d], dof_axis[d, 0], dof_axis[d, 1], dof_axis[d, 2], E)
+            wx, wy, wz = dof_axis[d, 0], dof_axis[d, 1], dof_axis[d, 2]
+            k = _unit_axis(wx, wy, wz)
+            if k >= 0:
+                _rotate_about_axis(R, s, k, wx + wy + wz, y[d])
+                d += 1
+                continue
+            _exp_into(y[d], wx, wy, wz, E)
             for i in range(3):
                 for j in range(3):
                     T[i, j] = R[s, i, 0] * E[0, j] + R[s, i, 1] * E[1, j] + R[s, i, 2] * E[2, j]
