@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.pose.flesh import PART, PARTS, build_flesh
-from app.pose.likelihood import Scorer
+from app.pose.likelihood import Scorer, log_likelihood, normalise, part_variances
 from app.pose.model import (DOF, DOF_AXIS, DOF_SEGMENT, LIMITS_HI, LIMITS_LO, N_DOF, N_SEG, SEG_OFFSET, SEG_PARENT,
                             SIGMA0, BodyModel, _exp_into, fk_segments, neutral_state)
 from app.pose.observation import Observation, observe
@@ -165,3 +165,20 @@ def test_forward_kinematics_axis_rotations_and_needed_segments():
         assert np.array_equal(R, Rr) and np.array_equal(O, Or)
         fk_segments(y, H, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, R2, O2, need)
         assert np.array_equal(R2[need], R[need]) and np.array_equal(O2[need], O[need])
+
+
+def test_scores_and_partitioned_likelihood_match_their_formulas():
+    """Eqs. 6.13-6.16 normalised and Eq. 6.25 (the fused loops) against numpy written out."""
+    rng = np.random.default_rng(11)
+    flesh = build_flesh(H, 0.02, 2.0)
+    counts = rng.integers(0, 60, (300, len(PARTS), 5)).astype(float)
+    counts[..., 3] = rng.random(counts.shape[:2]) * 40
+    counts[:5, :, 4] = 0.0
+    size = flesh.part_size[None, :]
+    want = np.stack([counts[..., 0] / size, counts[..., 1] / size, 1.0 - counts[..., 2] / size,
+                     counts[..., 3] / np.maximum(counts[..., 4], 1.0)], axis=-1)
+    scores = normalise(counts, flesh)
+    np.testing.assert_array_equal(scores, want)
+    for active in (np.ones(len(PARTS), bool), rng.random(len(PARTS)) < 0.5):
+        want = -0.5 * np.sum(scores[:, active, :] ** 2 / part_variances()[active][None], axis=(1, 2))
+        np.testing.assert_allclose(log_likelihood(scores, flesh, active), want, rtol=1e-13, atol=0)
