@@ -81,19 +81,24 @@ def propagate(states: np.ndarray, sigma: np.ndarray, lo: np.ndarray, hi: np.ndar
     mu = np.asarray(states, dtype=np.float64)
     sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), mu.shape)
     out = mu + rng.standard_normal(mu.shape) * sigma
-    bad = (out < lo) | (out > hi)
+    lo_b, hi_b = np.broadcast_to(lo, mu.shape), np.broadcast_to(hi, mu.shape)
+    # the rejected entries' indices in C order, the order of a boolean mask: only they
+    # are redrawn and tested again (the same draws as masking the whole array)
+    bad = np.nonzero((out < lo_b) | (out > hi_b))
     for _ in range(tries):
-        if not bad.any():
+        n = len(bad[0])
+        if not n:
             return out
-        redraw = mu[bad] + rng.standard_normal(int(bad.sum())) * sigma[bad]
+        redraw = mu[bad] + rng.standard_normal(n) * sigma[bad]
         out[bad] = redraw
-        bad = (out < lo) | (out > hi)
-    if bad.any():
-        lo_b = np.broadcast_to(lo, mu.shape)[bad]
-        hi_b = np.broadcast_to(hi, mu.shape)[bad]
-        a = np.clip(mu[bad] - 3 * sigma[bad], lo_b, hi_b)
-        b = np.clip(mu[bad] + 3 * sigma[bad], lo_b, hi_b)
-        out[bad] = a + rng.random(int(bad.sum())) * (b - a)
+        still = (redraw < lo_b[bad]) | (redraw > hi_b[bad])
+        bad = tuple(i[still] for i in bad)
+    n = len(bad[0])
+    if n:
+        lo_r, hi_r = lo_b[bad], hi_b[bad]
+        a = np.clip(mu[bad] - 3 * sigma[bad], lo_r, hi_r)
+        b = np.clip(mu[bad] + 3 * sigma[bad], lo_r, hi_r)
+        out[bad] = a + rng.random(n) * (b - a)
     return out
 
 
