@@ -149,6 +149,9 @@ HULL_VARIANTS = (
     ("k=1", {"tolerance": 1}),
     ("occluders", {"tolerance": 0, "occlusion": "learnt"}),
     ("fused", {"tolerance": 0, "method": "fused"}),
+    # the silhouette-edge (footprint) test alone, and with low learnt occluders (issue 8)
+    ("k=0 edge", {"tolerance": 0, "footprint": 0.34}),
+    ("tight", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}),
 )
 
 

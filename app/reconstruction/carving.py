@@ -159,23 +159,26 @@ def occluded_votes(mask, occluded, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _vote(v, c, i, j, k, q, depth_coef, occ_depth):
+def _vote(v, c, i, j, k, q, depth_coef, occ_depth, k_top):
     """A camera's vote on voxel (i, j, k); behind an occluder it abstains (0) when the
-    voxel lies at or past the occluder's depth, and says background in front of it."""
+    voxel lies at or past the occluder's depth and below layer ``k_top`` (furniture is
+    low), and says background otherwise."""
     if v != OCC_VOTE:
         return v
+    if k >= k_top:
+        return BG_VOTE
     z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
     return 0 if z >= occ_depth[q] else BG_VOTE
 
 
 @njit(cache=True, nogil=True)
 def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolerance, min_views, brick_key, local_key,
-                         shift_i, shift_j, out, n, support=0):
+                         shift_i, shift_j, out, n, support=0, k_top=1 << 30):
     """:func:`carve_cells` with learnt occluders: a camera abstains on a voxel behind
     one of its occluders (its pixel votes :data:`OCC_VOTE` and the voxel's depth in
     that camera, ``depth_coef . (i, j, k, 1)``, is at least ``occ_depth`` there). A
     voxel on which a camera abstains needs ``support`` foreground votes (and
-    ``min_views``)."""
+    ``min_views``). Cameras abstain only on voxels below layer ``k_top``."""
     n_cams = lut.shape[1]
     bshift = np.int64(0)
     while (np.int64(1) << bshift) < local_key.shape[0]:
@@ -196,7 +199,7 @@ def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolera
             abstain = 0
             for c in range(n_cams):
                 q = lut[p, c]
-                v = _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
+                v = _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth, k_top)
                 total += v
                 if v == 0 and votes[q] == OCC_VOTE:
                     abstain += 1
@@ -209,7 +212,7 @@ def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolera
 
 @njit(cache=True, nogil=True)
 def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent, support, brick_key, local_key,
-                  shift_i, shift_j, flag, flag_depth, free_depth):
+                  shift_i, shift_j, flag, flag_depth, free_depth, k_top=1 << 30):
     """Evidence for occluders (Guan et al. 2006): for every voxel of ``cells`` that
     exactly ``dissent`` cameras call background (``votes`` with the occluders learnt
     so far, as :func:`carve_cells_occluded` reads them) while at least ``support`` call
@@ -241,7 +244,10 @@ def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent,
             total = 0
             for c in range(n_cams):
                 q = lut[p, c]
-                total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth)
+                total += _vote(votes[q], c, i, j, k, q, depth_coef, occ_depth, k_top)
+            if k >= k_top:      # no evidence for an occluder from above its highest layer
+                if (total & MAX_CAMERAS) < support or (total >> VOTE_SHIFT) != 0:
+                    continue
             if (total & MAX_CAMERAS) < support:
                 continue
             nbg = total >> VOTE_SHIFT

@@ -20,6 +20,7 @@ from .carving import (MAX_CAMERAS, carve_cells, carve_cells_occluded, classify_c
                       mask_votes, occluded_votes)
 from .colouring import COLOURINGS, VoxelColourer
 from .floor import FloorBlobFilter
+from .footprint import GhostFilter, accept_map
 from .fused import chi2_thresholds, classify_cells_fused
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
 from .occlusion import OccluderModel
@@ -73,6 +74,21 @@ class Reconstructor:
         masks stay as they are).
     abstain_support : a voxel on which a camera abstains behind an occluder needs
         ``occlusion_support`` foreground votes (not only ``min_views``).
+    footprint : the silhouette-edge test (issue 8; an addition to the thesis, whose test
+        is the centre pixel, ``footprint = 0``): a camera also accepts a voxel whose
+        centre pixel is background when at least this fraction of the pixel box of
+        side ``2 footprint_radius + 1`` around it is foreground, so a voxel the
+        silhouette's outline cuts is not lost at reduced mask sizes (see
+        :func:`.footprint.accept_map`).
+    footprint_radius : half side (pixels) of that box; at the matched mask scale a
+        voxel's footprint is 1-3 pixels wide, so 1.
+    occlusion_top : learnt occluders: cameras abstain (and occluders are learnt) only
+        on voxels whose centre is lower than this (m): the furniture that hides people
+        is low, while the phantoms the cones of other people leave reach head height;
+        0 (default): no limit.
+    min_component : drop connected components of fewer voxels than this from the
+        published voxels (ghosts where silhouette cones of different people meet); 0
+        (the thesis) keeps all. Applied after ``min_top``.
     """
 
     def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
@@ -82,7 +98,9 @@ class Reconstructor:
                  threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
                  occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
                  occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
-                 abstain_support: bool = True, alpha: float = 0.99, samples: str = "all"):
+                 abstain_support: bool = True, alpha: float = 0.99, samples: str = "all",
+                 footprint: float = 0.0, footprint_radius: int = 1, min_component: int = 0,
+                 occlusion_top: float = 0.0):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -91,6 +109,10 @@ class Reconstructor:
             raise ValueError(f"occlusion must be one of {', '.join(OCCLUSIONS)}, got {occlusion!r}")
         if occlusion != "none" and method == "fused":
             raise ValueError("learnt occluders work with the hierarchical and flat methods, not with fused")
+        if not 0.0 <= footprint <= 1.0 or footprint_radius < 1 or min_component < 0:
+            raise ValueError("footprint must be in [0, 1], footprint_radius >= 1 and min_component >= 0")
+        if footprint > 0 and method == "fused":
+            raise ValueError("the footprint test works with the hierarchical and flat methods, not with fused")
         if tolerance < 0 or min_views < 1:
             raise ValueError("tolerance must be >= 0 and min_views >= 1")
         if len(calibration.cameras) > MAX_CAMERAS:
@@ -122,6 +144,9 @@ class Reconstructor:
         self.table = ProjectionTable(self.layout, self.mask_cameras, box_levels=box_levels, cache=cache)
         self.build_ms = (time.perf_counter() - t0) * 1e3
         self.floor = FloorBlobFilter(voxel_size, self.grid.origin[2], self.grid.dims, min_top) if min_top > 0 else None
+        self.footprint = float(footprint)
+        self.footprint_radius = int(footprint_radius)
+        self.ghosts = GhostFilter(self.grid.dims, min_component) if min_component > 0 else None
         self.colourer = VoxelColourer(self.grid, self.colour_cameras, colouring, splat=splat,
                                       depth_tolerance=depth_tolerance, march=march, threads=threads)
         # per-frame buffers, allocated once
@@ -151,6 +176,9 @@ class Reconstructor:
             self._fg = np.zeros(t.mask_total, dtype=np.uint8)          # the masks, 0/1
             self._sat_fg = np.zeros(t.sat_total, dtype=np.int32)
         self.occlusion = occlusion
+        self._k_top = 1 << 30
+        if occlusion_top > 0:
+            self._k_top = max(0, int(np.ceil((occlusion_top - self.grid.origin[2]) / voxel_size - 0.5)))
         self.abstain_support = bool(abstain_support)
         self.learn_every = int(learn_every)
         self.frames_carved = 0
@@ -217,6 +245,8 @@ class Reconstructor:
                 cams.append(c)
                 continue
             m01 = np.ascontiguousarray(m.view(np.uint8) if m.dtype == np.bool_ else (m != 0).view(np.uint8))
+            if self.footprint > 0:
+                m01 = accept_map(m01, self.footprint, self.footprint_radius)
             if occ is None:
                 mask_votes(m01.reshape(-1), votes.reshape(-1))
                 if self.method == "hierarchical":
@@ -264,7 +294,7 @@ class Reconstructor:
         occ, lay = self.occluders, self.layout
         return dissent_cells(cells, shift, self.table.lut, self._votes, self._raw, self._depth_coef, occ.occ_depth,
                              dissent, occ.support, lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j,
-                             occ.flag, occ.flag_depth, occ.free_depth)
+                             occ.flag, occ.flag_depth, occ.free_depth, self._k_top)
 
     def _carve_voxels(self, cells, shift, k, mv, n, early_exit) -> int:
         """The exact per-voxel test of ``cells``, with or without occluders."""
@@ -274,7 +304,7 @@ class Reconstructor:
                                early_exit)
         return carve_cells_occluded(cells, shift, t.lut, self._votes, self._depth_coef, self.occluders.occ_depth, k, mv,
                                     lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j, self._keys, n,
-                                    self.occluders.support if self.abstain_support else 0)
+                                    self.occluders.support if self.abstain_support else 0, self._k_top)
 
     def occluder_share(self) -> dict:
         """``{camera: fraction of its mask's pixels that are learnt occluder pixels}``."""
@@ -289,7 +319,9 @@ class Reconstructor:
         cams = self._upload_masks(masks)
         indices = self._indices(self._carve_keys(cams))
         self._after_carving(cams)
-        return self.floor(indices) if self.floor is not None else indices
+        if self.floor is not None:
+            indices = self.floor(indices)
+        return self.ghosts(indices) if self.ghosts is not None else indices
 
     def _after_carving(self, cams) -> None:
         self.frames_carved += 1
@@ -360,8 +392,11 @@ class Reconstructor:
         self._after_carving(cams)
         t1 = time.perf_counter()
         timings = {"carve": (t1 - t0) * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
-        if self.floor is not None:
-            indices = self.floor(indices)
+        if self.floor is not None or self.ghosts is not None:
+            if self.floor is not None:
+                indices = self.floor(indices)
+            if self.ghosts is not None:
+                indices = self.ghosts(indices)
             timings["floor"] = (time.perf_counter() - t1) * 1e3
         images = images or {}
         imgs = [images.get(n) for n in self.names]
@@ -391,5 +426,7 @@ class Reconstructor:
         self.frames_carved = 0
         if self.floor is not None:  # the tiny blob may leave no voxel for the floor filter
             self.floor(np.zeros((2, 3), dtype=np.uint16))
+        if self.ghosts is not None:
+            self.ghosts(np.zeros((2, 3), dtype=np.uint16))
         lay = self.layout
         fill_cells(self._root_cells[:0], 0, lay.brick_key, lay.local_key, self._keys, 0)   # may not have run
