@@ -39,7 +39,12 @@ def annealing_exponent(log_w: np.ndarray, alpha: float = 0.5, tol: float = 1e-3,
     spread = float(np.max(log_w) - np.min(log_w)) if len(log_w) else 0.0
     if not np.isfinite(spread) or spread <= 1e-12:
         return 1.0
-    f = lambda b: survival_rate(log_w, b) - alpha  # noqa: E731
+    centred = log_w - np.max(log_w)   # survival_rate's, computed once for every trial beta
+    n = len(log_w)
+
+    def f(b):
+        w = np.exp(b * centred)
+        return float(w.sum() ** 2 / (n * np.sum(w * w))) - alpha
     lo, flo = 0.0, 1.0 - alpha
     hi = 1.0 / spread
     fhi = f(hi)
