@@ -126,6 +126,12 @@ def test_kernel_matches_the_reference_on_random_particles(scene, density):
     np.testing.assert_array_equal(scorer.counts(states[:7], no_left_arm), got[:7])
     np.testing.assert_array_equal(np.concatenate([scorer.counts(states[i:i + 1], no_left_arm)
                                                   for i in range(7)]), got[:7])
+    # another observation with another box (the stamp grid is reused, not cleared)
+    small = observe(obs.centres[obs.centres[:, 2] > 1.0], 0.02, ROOM_LO, ROOM_HI)
+    assert small.occ.shape != obs.occ.shape
+    scorer.set_observation(small)
+    np.testing.assert_array_equal(scorer.counts(states, h1)[..., [0, 1, 2, 4]],
+                                  _counts_reference(states, flesh, small, h1)[..., [0, 1, 2, 4]])
 
 
 def test_kernel_on_a_grid_without_an_empty_first_cell():

@@ -352,10 +352,12 @@ class Scorer:
         h = self.flesh.spacing
         span = obs.occ.shape[0] * obs.voxel_size, obs.occ.shape[1] * obs.voxel_size, obs.occ.shape[2] * obs.voxel_size
         dims = tuple(int(np.ceil(v / h)) + 1 for v in span)
-        if self._stamp is None or tuple(self._do_dims) != dims:
-            self._stamp = np.zeros(int(np.prod(dims)), np.int64)
-            self._do_dims = np.array(dims, dtype=np.int64)
-            self._token = 1
+        # the stamps of earlier particles (smaller tokens) never count, whatever the grid's
+        # shape then: the grid is reused as long as it is large enough, never cleared
+        need = int(np.prod(dims))
+        if self._stamp is None or len(self._stamp) < need:
+            self._stamp = np.zeros(need + need // 4, np.int64)
+        self._do_dims = np.array(dims, dtype=np.int64)
         self._origin = np.asarray(obs.origin, dtype=np.float64)
         self._dims = np.array(obs.occ.shape, dtype=np.int64)
         occ, prox = np.ravel(obs.occ), np.ravel(obs.prox)
