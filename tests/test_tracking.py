@@ -174,3 +174,25 @@ def test_scores_on_a_short_scene_of_three_people():
         truth[f] = {1: a, 2: b, 3: c}
     s = score_tracking(truth_of(truth), run(frames))
     assert s.mota >= 0.9 and s.idf1 >= 0.9 and s.motp_mm < 60, s.summary()
+
+
+def test_a_person_who_briefly_fails_the_person_test_keeps_their_id():
+    """A person crouches for 24 frames (the blob drops to 1.2 m: the classifier says no
+    person, the track ends after ``no_person_frames``) and stands up again: with
+    re-identification the new track takes the ended track's id; without (``reid_frames
+    = 0``, the thesis's track life) the person comes back under a new id."""
+    frames, truth = [], {}
+    for f in range(80):
+        x = 1.5 + 1.5 * f / 79
+        height = 1.2 if 20 <= f < 44 else 1.72
+        frames.append(frame_of(f, [(_cylinder(x, 2.0, height=height), RED, BLUE),
+                                   (_cylinder(1.0, 3.4), GREEN, GREY)]))
+        truth[f] = {1: (x, 2.0), 2: (1.0, 3.4)}
+    res = run(frames)
+    ids = {int(i) for f in range(5, 80) for i in res[f][0]}
+    assert len(ids) == 2, ids                       # the crouching person kept their id
+    assert any(len(res[f][0]) == 1 for f in range(20, 50))   # ... though their track was dropped
+    s = score_tracking(truth_of(truth), res)
+    assert s.mismatches == 0 and s.idf1 >= 0.85, s.summary()
+    plain = run(frames, reid_frames=0)
+    assert len({int(i) for f in range(5, 80) for i in plain[f][0]}) == 3

@@ -5,7 +5,9 @@ voxels are reconstructed once offline (:func:`app.tracking.offline.recording_vox
 cached) and every tracker configuration (filter x sample / particle count) runs CCA,
 the person test and the tracker over the same frames on one core, in this process.
 Each row: MOTP (mm), MOTA, IDF1, the error ratios and the ms per frame of CCA +
-tracking (median and p95; the timing is of this process on a possibly shared machine).
+tracking (median and p95; the timing is of this process on a possibly shared machine)
+and the median CPU time of the same (``cpu p50``: this thread's CPU time, what one core
+spends on a frame even when other processes share the cores).
 A filter marked ``*`` runs as the thesis has it (``:thesis`` in ``--filters``).
 """
 from __future__ import annotations
@@ -27,7 +29,7 @@ CONFIGS = (
 )
 
 HEADER = (f"{'recording':<11}{'voxel':>6} {'filter':<10}{'N':>5}{'MOTP mm':>9}{'MOTA':>8}{'IDF1':>8}"
-          f"{'miss':>7}{'fp':>7}{'mme':>5}{'ids':>5}{'ms p50':>8}{'ms p95':>8}")
+          f"{'miss':>7}{'fp':>7}{'mme':>5}{'ids':>5}{'ms p50':>8}{'ms p95':>8}{'cpu p50':>8}")
 
 
 def parse_configs(text: str) -> list[tuple]:
@@ -88,9 +90,12 @@ def run(recordings, voxel_sizes=(0.02, 0.05, 0.10), configs=CONFIGS, frames: int
                 res = track_frames(vox, grid, _params(name, n, thesis), tree, timings)
                 s = score_tracking(truth, res, frames=[f for f in sorted(truth) if f in res]).summary()
                 ms = np.asarray(timings.get("cca", [0])) + np.asarray(timings.get("tracking", [0]))
+                cpu = np.asarray(timings.get("cca_cpu", [0])) + np.asarray(timings.get("tracking_cpu", [0]))
                 row = {"recording": Path(rec).name, "voxel_size": vs, "filter": name + ("*" if thesis else ""), "n": n,
                        "ms_p50": round(float(np.median(ms)), 2), "ms_p95": round(float(np.percentile(ms, 95)), 2),
+                       "cpu_ms_p50": round(float(np.median(cpu)), 2), "cpu_ms_p95": round(float(np.percentile(cpu, 95)), 2),
                        "cca_ms_p50": round(float(np.median(timings.get("cca", [0]))), 2),
+                       "cca_cpu_ms_p50": round(float(np.median(timings.get("cca_cpu", [0]))), 2),
                        "tracking_ms_p50": round(float(np.median(timings.get("tracking", [0]))), 2), **s}
                 rows.append(row)
                 if progress:
@@ -102,7 +107,7 @@ def format_row(r: dict) -> str:
     n = "" if r["n"] is None else str(r["n"])
     return (f"{r['recording']:<11}{100 * r['voxel_size']:>4g}cm {r['filter']:<10}{n:>5}{r['motp_mm']:>9.1f}"
             f"{r['mota']:>8.3f}{r['idf1']:>8.3f}{r['miss_ratio']:>7.3f}{r['false_positive_ratio']:>7.3f}"
-            f"{r['mismatches']:>5}{r['track_ids']:>5}{r['ms_p50']:>8.1f}{r['ms_p95']:>8.1f}")
+            f"{r['mismatches']:>5}{r['track_ids']:>5}{r['ms_p50']:>8.1f}{r['ms_p95']:>8.1f}{r.get('cpu_ms_p50', 0):>8.1f}")
 
 
 def format_table(result: dict) -> str:

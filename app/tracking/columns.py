@@ -153,10 +153,11 @@ def disc_support(col_run, run_z0, run_z1, run_label, nx, ny, ox, oy, s, x, y, r,
 
 
 @njit(cache=True, nogil=True)
-def voronoi_sum(col_start, idx, nx, ny, ox, oy, oz, s, xs, me, close, r, out):
+def voronoi_sum(col_start, idx, nx, ny, ox, oy, oz, s, xs, me, close, r, z_min, out):
     """Sum of the centres (``out`` (3,)) and count of the voxels within ``r`` (xy) of
     target ``me`` that are nearer (xy) to it than to the other targets of ``close``
-    (rows of ``xs``; the first nearest wins a tie, as ``argmin``)."""
+    (rows of ``xs``; the first nearest wins a tie, as ``argmin``) and whose centre is
+    at least ``z_min`` high."""
     x, y = xs[me, 0], xs[me, 1]
     r2 = r * r
     i0, i1 = _span(x, r, ox, s, nx)
@@ -185,9 +186,12 @@ def voronoi_sum(col_start, idx, nx, ny, ox, oy, oz, s, xs, me, close, r, out):
                     continue
             c = i * ny + j
             for a in range(col_start[c], col_start[c + 1]):
+                z = oz + (idx[a, 2] + 0.5) * s
+                if z < z_min:
+                    continue
                 out[0] += cx
                 out[1] += cy
-                out[2] += oz + (idx[a, 2] + 0.5) * s
+                out[2] += z
                 count += 1
     return count
 

@@ -3,7 +3,10 @@
 Each frame (:meth:`MultiTracker.update`):
 
 1. every target's filter steps (Naive §4.3.1, particle filter §4.3.2 or Sparse Sampling
-   §4.3.3, raw or colour; the filters model their interactions themselves);
+   §4.3.3, raw or colour; the filters model their interactions themselves); beyond the
+   thesis (``refine``), each estimate is then re-centred in xy on the voxels of its
+   share that are at least ``refine_min_z`` high (the upper body: the visual hull's
+   lower part is fattened by phantom volume that pulls a centroid away from the body);
 2. deletion (§4.2.3): a target that falls within ``duplicate_distance`` of an older one
    for ``duplicate_frames`` frames is a duplicate; a target whose support (the weight of
    the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
@@ -13,10 +16,15 @@ Each frame (:meth:`MultiTracker.update`):
    no target claims (farther than ``claim_radius`` from every target, xy) are a
    candidate when the classifier also calls *them* a person (so a person merged into
    the blob of a tracked one is found too) and their centroid is farther than
-   ``new_distance`` from every target; a candidate seen at about the same place for
-   ``confirm_frames`` frames becomes a track with a new id.
+   ``new_distance`` from every target and higher than ``new_min_z`` (beyond the thesis:
+   lower blobs are phantoms and pieces of the hull, not people); a candidate seen at
+   about the same place for ``confirm_frames`` frames becomes a track with a new id;
+4. re-identification (beyond the thesis, ``reid_frames``; 0 turns it off): a track
+   confirmed where a track ended for a no-person verdict a moment ago, and, with colour,
+   dressed alike, takes the ended track's id, so a person whose track was dropped for
+   a few frames (a blob that briefly fails the person test) keeps their identity.
 
-The tracker reports confirmed targets only; ids are never reused.
+The tracker reports confirmed targets only; ids are never reused otherwise.
 """
 from __future__ import annotations
 
@@ -28,7 +36,7 @@ from app.tracking import columns
 from app.tracking.blobs import CLASSIFIER_FEATURES, component_features, features_from_sums
 from app.tracking.naive import NaiveTarget
 from app.tracking.particle import ParticleTarget
-from app.tracking.scene import SceneFrame
+from app.tracking.scene import SceneFrame, bhattacharyya
 from app.tracking.sparse import SparseTarget
 
 __all__ = ["TrackerParams", "MultiTracker", "FILTERS"]
@@ -65,14 +73,19 @@ class TrackerParams:
     new_distance_merged: float = 0.6   # the same for people merged into a tracked component
     claim_radius: float = 0.45     # voxels this close to a target (xy) are its own
     confirm_frames: int = 5
+    new_min_z: float = 0.6         # no new track whose candidate's centroid is lower (m; -inf: any)
     duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
     duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
     min_support_kg: float = 10.0
     lost_frames: int = 8
-    no_person_frames: int = 12
-    share_frames: int = 8          # a younger track whose share is no person this long is a duplicate
+    no_person_frames: int = 18
+    share_frames: int = 12         # a younger track whose share is no person this long is a duplicate
+    reid_frames: int = 50          # a new track this soon after a track ended near it takes its id (0: never)
+    reid_distance: float = 0.75    # ... within this distance (m, xy) of where it ended
+    reid_similarity: float = 0.5   # ... with reference histograms this similar (Bhattacharyya), colour filters
     refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
     refine_radius: float = 0.45
+    refine_min_z: float = 0.9      # re-centre (xy) on the voxels at least this high (the upper body; -inf: all)
     seed: int = 0
 
     @classmethod
@@ -110,6 +123,9 @@ class MultiTracker:
         self.candidates: list[tuple[np.ndarray, int]] = []
         self.next_id = 1
         self.deleted = 0
+        self.ended: list[tuple] = []   # (frame, id, position, reference histogram) of recently ended tracks
+        #: (frame, "new" | "end", id, why, position) of every track created or ended
+        self.events: list[tuple] = []
         self._col_first = None
         self._scratch = None
 
@@ -139,9 +155,12 @@ class MultiTracker:
             # only targets whose discs overlap compete for voxels
             close = np.nonzero(((xs[:, :2] - xs[i, :2]) ** 2).sum(axis=1) < (2 * r) ** 2)[0]
             k = columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
-                                    scene.voxel_size, xs, i, close, r, acc)
+                                    scene.voxel_size, xs, i, close, r, self.p.refine_min_z, acc)
             if k >= 3:
-                t.target.x = acc / k
+                x = acc / k
+                if self.p.refine_min_z > -np.inf:   # the upper body places the target in xy only
+                    x[2] = t.target.x[2]
+                t.target.x = x
 
     def _make(self, position, scene):
         if self.cls is NaiveTarget:
@@ -227,6 +246,11 @@ class MultiTracker:
             alone_fail = t.no_person >= p.no_person_frames
             if t.low_support >= p.lost_frames or alone_fail or shared_fail or t.close >= p.duplicate_frames:
                 self.deleted += 1
+                why = ("lost" if t.low_support >= p.lost_frames else "duplicate" if t.close >= p.duplicate_frames
+                       else "no-person" if alone_fail else "shared-no-person")
+                self.events.append((scene.frame, "end", t.id, why, t.target.x.copy()))
+                if why in ("no-person", "shared-no-person") and p.reid_frames > 0:
+                    self.ended.append((scene.frame, t.id, t.target.x.copy(), getattr(t.target, "reference", None)))
                 continue
             keep.append(t)
         self.tracks = keep
@@ -280,13 +304,18 @@ class MultiTracker:
         # confirmation: a candidate seen again near where it was the frame before
         nxt = []
         for c in found:
+            if c[2] < p.new_min_z:   # a blob this low is a phantom or a piece, not a body
+                continue
             count = 1
             for old, k in self.candidates:
                 if ((old[:2] - c[:2]) ** 2).sum() < p.new_distance ** 2:
                     count = max(count, k + 1)
             if count >= p.confirm_frames:
-                self.tracks.append(_Track(self.next_id, self._make(self._start(c), scene)))
-                self.next_id += 1
+                target = self._make(self._start(c), scene)
+                tid = self._reidentify(scene, target)
+                self.tracks.append(_Track(tid, target))
+                self.events.append((scene.frame, "new", tid, "" if tid == self.next_id - 1 else "re-identified",
+                                    c.copy()))
             else:
                 nxt.append((c, count))
         self.candidates = nxt
@@ -301,6 +330,29 @@ class MultiTracker:
             columns.component_sums(scene.indices, scene.labels, scene.origin, scene.voxel_size, sums, counts)
             self._centres = sums / np.maximum(counts, 1)[:, None]
         return self._centres[c].copy()
+
+    def _reidentify(self, scene: SceneFrame, target) -> int:
+        """Beyond the thesis (``reid_frames``): a new track confirmed within
+        ``reid_distance`` (xy) of where a track ended for a no-person verdict (not lost:
+        a person who left; not a duplicate)
+        at most ``reid_frames`` frames ago, and, with colour, with a reference histogram
+        at least ``reid_similarity`` like the ended track's, is that person back: it takes
+        the ended track's id (the nearest such). Otherwise a new id."""
+        p = self.p
+        self.ended = [e for e in self.ended if scene.frame - e[0] <= p.reid_frames]
+        best, best_d = None, p.reid_distance ** 2
+        for k, (_, tid, x, ref) in enumerate(self.ended):
+            d = float(((x[:2] - target.x[:2]) ** 2).sum())
+            if d > best_d:
+                continue
+            new_ref = getattr(target, "reference", None)
+            if ref is not None and new_ref is not None and bhattacharyya(ref, new_ref) < p.reid_similarity:
+                continue
+            best, best_d = k, d
+        if best is None:
+            self.next_id += 1
+            return self.next_id - 1
+        return self.ended.pop(best)[1]
 
     def _run_pieces(self, scene: SceneFrame, runs: np.ndarray) -> tuple[np.ndarray, int]:
         """Connected pieces (26-connectivity) of a subset of the frame's runs: the piece
