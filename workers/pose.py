@@ -11,7 +11,10 @@ one worker carries in real time is a layout matter: several pose workers, each w
 
 ``method``: ``shbm`` (SHBM-APF, §7.3, default), ``apf`` (§6.5), ``ddm`` (APF with DDM
 limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density factor
-(Eq. 6.26); ``likelihood`` ``partitioned`` (Eqs. 6.23-6.25) or ``global`` (6.17-6.22).
+(Eq. 6.26); ``likelihood`` ``partitioned`` (Eqs. 6.23-6.25) or ``global`` (6.17-6.22);
+``coverage``, ``floor`` and ``ik`` the additions for visual hulls
+(:mod:`app.pose.coverage`, :mod:`app.pose.detections`; ``coverage: 0, floor: 0,
+ik: straight`` is the thesis's likelihood with the earlier proposals).
 """
 from __future__ import annotations
 
@@ -40,13 +43,18 @@ class Pose(Worker):
         "layers": 6,                # APF: annealing layers
         "gamma": 50,                # SHBM-APF: particles per new DoF (Eq. 7.28)
         "importance_fraction": 0.2,  # IAPF: first-layer particles drawn from the detections
+        "coverage": 0.003,          # sigma^2 of the coverage term for fat hulls (app.pose.coverage); 0 = thesis
+        "coverage_partial": True,   # coverage also on SHBM-APF's partial models
+        "floor": 0.02,              # m: floor prior on the lower ankle; 0 = none (thesis)
+        "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
         "seed": 0,
     }
-    CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global")}
+    CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
+               "ik": ("table", "straight")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
-              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0)}
+              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0)}
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -55,6 +63,8 @@ class Pose(Worker):
             self.settings = PoseSettings(method=p["method"], density=float(p["density"]), likelihood=p["likelihood"],
                                          particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
                                          importance_fraction=float(p["importance_fraction"]),
+                                         coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
+                                         floor=float(p["floor"]), ik=str(p["ik"]),
                                          reach=float(p["reach"]), seed=int(p["seed"]))
             self.settings.validate()
         except (TypeError, ValueError) as exc:
@@ -72,6 +82,9 @@ class Pose(Worker):
         self.people_counts: list[int] = []
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
+        if self.settings.ik == "table":
+            from app.pose.detections import arm_table
+            arm_table("l"), arm_table("r")      # the inverse-kinematics tables, before the first frame
 
     def _estimator(self, msg: Voxels):
         from app.pose.estimator import PoseEstimator

@@ -4,8 +4,9 @@ accuracy (MMTA / MMTP at 100 mm, MPJPE), so the accuracy price of the model dens
 table.
 
 Each row runs one method at one density over the same simulated clip(s): one person,
-voxels of the true body at ``voxel_size`` (default 2 cm) or the visual hull of the
-true silhouettes (``source="hull"``), true centroids as tracks. Times are wall clock
+voxels of the true body at ``voxel_size`` (default 2 cm), the visual hull of the
+true silhouettes (``source="hull"``) or of the MOG2 masks (``source="mog2"``), true
+centroids as tracks. Times are wall clock
 and the thread's CPU time (the latter is what one core costs when other processes
 share the machine). The first
 ``warmup`` frames (lock-on and kernel compilation) are timed but not scored.
@@ -31,23 +32,35 @@ CONFIGS = (
 
 def bench_pose(scenes=("gesture1", "walk1"), frames: int = 75, start: int = 0, voxel_size: float = 0.02,
                densities=(1, 2, 3), methods=("apf", "shbm", "ddm"), source: str = "true", warmup: int = 5,
-               epsilon: float = 0.1, verbose: bool = True) -> list[dict]:
+               epsilon: float = 0.1, verbose: bool = True, tolerance: int = 1, occlusion: str = "none",
+               settings: dict | None = None, seeds=(0,)) -> list[dict]:
+    """``source``: ``true`` (body voxels), ``hull`` (shape from the true silhouettes) or
+    ``mog2`` (shape from the segmentation's MOG2 masks of the rendered images, the
+    pipeline's reconstruction) with ``tolerance`` k and ``occlusion``; ``settings``:
+    :class:`PoseSettings` overrides (e.g. ``{"coverage": 0}`` for the thesis's
+    likelihood); ``seeds``: filter seeds, errors pooled over them."""
     clips = {}
     for scene in scenes:
-        clips[scene], cal = simulated_clip(scene, range(start, start + frames), voxel_size, source=source)
+        clips[scene], cal = simulated_clip(scene, range(start, start + frames), voxel_size, source=source,
+                                           tolerance=tolerance, occlusion=occlusion)
     rows = []
     for label, method, extra in CONFIGS:
         if method not in methods:
             continue
         for density in densities:
             for scene, clip in clips.items():
-                s = PoseSettings(method=method, voxel_size=voxel_size, density=float(density),
-                                 room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max), **extra)
-                res = run_clip(clip, s)
-                E = clip_errors(clip, res["estimates"])[warmup:]
+                Es, ms, cpu = [], [], []
+                for seed in seeds:
+                    s = PoseSettings(method=method, voxel_size=voxel_size, density=float(density), seed=int(seed),
+                                     room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
+                                     **{**extra, **(settings or {})})
+                    res = run_clip(clip, s)
+                    Es.append(clip_errors(clip, res["estimates"])[warmup:])
+                    ms += res["ms"][warmup:]
+                    cpu += res["cpu_ms"][warmup:]
+                E = np.concatenate(Es)
                 m = point_metrics(E, epsilon)
-                ms = np.array(res["ms"][warmup:])
-                cpu = np.array(res["cpu_ms"][warmup:])
+                ms, cpu = np.array(ms), np.array(cpu)
                 row = {"method": label, "scene": scene, "density": density, "frames": len(clip),
                        "ms_p50": round(float(np.median(ms)), 1), "ms_p95": round(float(np.percentile(ms, 95)), 1),
                        "cpu_ms_p50": round(float(np.median(cpu)), 1),

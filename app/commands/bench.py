@@ -50,8 +50,12 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-methods", default="apf,shbm,ddm", help="pose: methods (apf, shbm, ddm, shbm+ddm)")
     p.add_argument("--densities", default="1,2,3", help="pose: model density factors (Eq. 6.26, default 1,2,3)")
     p.add_argument("--pose-scenes", default="gesture1,walk1", help="pose: simulated scenes (default gesture1,walk1)")
-    p.add_argument("--voxels", default="true", choices=("true", "hull"),
-                   help="pose: voxels of the true bodies or the visual hull of the true silhouettes")
+    p.add_argument("--voxels", default="true", choices=("true", "hull", "mog2"),
+                   help="pose: voxels of the true bodies, the visual hull of the true silhouettes, or of the "
+                        "segmentation's MOG2 masks (the pipeline's reconstruction; with --tolerance)")
+    p.add_argument("--pose-set", metavar="K=V,...", default="",
+                   help="pose: PoseSettings overrides, e.g. coverage=0 (the thesis's likelihood) or ik=straight")
+    p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
 
 
 def _bus(args, out: Path) -> dict:
@@ -146,8 +150,22 @@ def _pose(args, out: Path) -> dict:
     print(f"smartroom bench pose: {frames} frames of {args.pose_scenes} at {100 * voxel:g} cm, one core",
           file=sys.stderr)
     print(pose.HEADER)
+    from dataclasses import fields
+
+    from app.pose.estimator import PoseSettings
+    known = {f.name for f in fields(PoseSettings)}
+    settings = {}
+    for item in filter(None, args.pose_set.split(",")):
+        key, _, value = (v.strip() for v in item.partition("="))
+        if key not in known or not value:
+            raise InputError(f"--pose-set {item}: expected KEY=VALUE with KEY one of {', '.join(sorted(known))}")
+        try:
+            settings[key] = float(value)
+        except ValueError:
+            settings[key] = value
     rows = pose.bench_pose(scenes=tuple(args.pose_scenes.split(",")), frames=frames, voxel_size=voxel,
-                           densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels)
+                           densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels,
+                           tolerance=args.tolerance, settings=settings, seeds=tuple(range(args.pose_seeds)))
     return {"frames": frames, "voxel_size": voxel, "rows": rows}
 
 

@@ -10,8 +10,18 @@ Detections (cheap, from the voxel list):
 * **torso axis**: from the pelvis estimate to the head, and the principal horizontal
   axis of the shoulder band, whose normal is the heading up to a sign (two
   candidates; the track's velocity picks one while the person walks);
-* **extremities**: surface voxels of the upper body farthest from the torso axis (hand
-  candidates), each turned into shoulder angles that point a straight arm at it.
+* **extremities**: voxels of the upper body far from the torso (farther than 0.30 m
+  from the axis through the head, or above the head, or farther than 0.32 H from the
+  shoulders' centre and above the hips, but within an arm's reach, 0.5 H): the 20
+  farthest on each side of the shoulder line (hand candidates). Each is turned into
+  arm angles by inverse kinematics: a look-up table of random arm configurations
+  inside the joint limits (shoulder flexion, abduction, rotation and elbow) indexed
+  by where they put the wrist relative to the shoulder in the torso frame (cells of
+  2.5 % of the stature); a draw takes a configuration whose wrist falls in the
+  target's cell (the target pulled back half a hand, within reach), so a bent arm (a
+  forearm raised over a horizontal upper arm) is proposed as readily as a straight
+  one. ``ik="straight"`` keeps the straight arm pointed at the target (the earlier
+  proposal).
 
 The importance function draws whole states: root under the head at the height the
 blob's top allows, heading from the candidates, waist flexion from the lean, arms
@@ -27,7 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, neutral_state, standing_root_height
+from app.messages import JOINTS
+from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, BodyModel, neutral_state, standing_root_height
 
 __all__ = ["Detections", "detect", "Importance"]
 
@@ -70,14 +81,26 @@ def detect(centres: np.ndarray, height: float, velocity=None) -> Detections | No
         headings += [yaw, yaw + math.pi]
     if not headings:
         headings = list(np.linspace(-math.pi, math.pi, 4, endpoint=False))
-    # extremities: upper-body voxels far from the vertical axis through the head
+    # extremities: upper-body voxels far from the torso, the farthest of each side
     upper = c[(c[:, 2] > top - 0.55 * height)]
+    chest = np.array([head[0], head[1], head[2] - 0.125 * height])     # the shoulders' centre
     d = np.hypot(upper[:, 0] - head[0], upper[:, 1] - head[1])
-    far = upper[d > 0.30]
+    r = np.linalg.norm(upper - chest, axis=1)
+    # (far from the shoulders only above the hips: the hips are as far from them as a hand)
+    # (and within an arm's reach: a hull's ghosts farther away are nobody's hand)
+    pick = (d > 0.30) | (upper[:, 2] > top + 0.04) | ((r > 0.32 * height) & (upper[:, 2] > top - 0.42 * height))
+    pick &= r < 0.50 * height
+    far, r = upper[pick], r[pick]
     hands = None
     if len(far):
-        order = np.argsort(-np.hypot(far[:, 0] - head[0], far[:, 1] - head[1]))
-        hands = far[order[:min(len(order), 20)]]
+        side = np.ones(len(far), dtype=bool)
+        if len(band) >= 10:
+            side = (far[:, :2] - axis) @ major >= 0
+        keep = []
+        for group in (np.flatnonzero(side), np.flatnonzero(~side)):
+            order = group[np.argsort(-r[group])]
+            keep.extend(order[:20])
+        hands = far[np.array(keep, dtype=np.int64)]
     return Detections(head=head, top=top, centroid=centroid, headings=headings, hands=hands)
 
 
@@ -90,14 +113,104 @@ def _arm_angles(direction: np.ndarray, side: int):
     return f, a
 
 
+_ARM_DOFS = {side: np.array([DOF[f"{side}_{n}"] for n in ("sh_flex", "sh_abd", "sh_rot", "elbow")])
+             for side in ("l", "r")}
+_IK_CELL = 0.025
+_IK_TABLES: dict = {}
+
+
+def arm_table(side: str, n: int = 40000):
+    """Inverse kinematics by look-up: ``(configs (n, 4), wrist (n, 3), keys sorted, order)``
+    of random arm configurations of one side inside the joint limits, with the wrist
+    relative to the shoulder in the torso frame in units of the stature."""
+    if side not in _IK_TABLES:
+        rng = np.random.default_rng(20091)
+        d = _ARM_DOFS[side]
+        cfg = rng.uniform(LIMITS_LO[d], LIMITS_HI[d], size=(n, 4))
+        states = np.tile(neutral_state(1.0, (0.0, 0.0, 1.0)), (n, 1))
+        states[:, d] = cfg
+        j = BodyModel(1.0).joints(states)
+        wrist = j[:, JOINTS.index(f"{side}_wrist")] - j[:, JOINTS.index(f"{side}_shoulder")]
+        keys = _ik_keys(wrist)
+        order = np.argsort(keys, kind="stable")
+        _IK_TABLES[side] = (cfg[order], wrist[order], keys[order])
+    return _IK_TABLES[side]
+
+
+def _ik_keys(rel: np.ndarray) -> np.ndarray:
+    q = np.floor(np.asarray(rel) / _IK_CELL).astype(np.int64) + 64
+    return (q[..., 0] * 128 + q[..., 1]) * 128 + q[..., 2]
+
+
+def _torso_frames(states: np.ndarray, height: float):
+    """Shoulders ``{side: (n, 3)}`` and torso frames ``(n, 3, 3)`` (columns x forward,
+    y left, z up) of states, from their joints."""
+    j = BodyModel(height).joints(states)
+    ls, rs = j[:, JOINTS.index("l_shoulder")], j[:, JOINTS.index("r_shoulder")]
+    up = j[:, JOINTS.index("neck")] - j[:, JOINTS.index("pelvis")]
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    left = ls - rs
+    left -= np.sum(left * up, axis=1, keepdims=True) * up
+    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
+    fwd = np.cross(left, up)
+    return {"l": ls, "r": rs}, np.stack([fwd, left, up], axis=2)
+
+
 class Importance:
     """The importance function ``q(y | detections)`` of one frame (callable
-    ``(n, rng, base) -> (n, 27)``; ``base`` gives the DoFs the detections say nothing about)."""
+    ``(n, rng, base, dofs) -> (n, 27)``; ``base`` gives the DoFs the detections say
+    nothing about, ``dofs`` (optional) the only DoFs drawn: the others stay the base's,
+    and the arms' inverse kinematics is solved on the base's torso)."""
 
-    def __init__(self, det: Detections, height: float):
-        self.det, self.height = det, height
+    def __init__(self, det: Detections, height: float, ik: str = "table"):
+        if ik not in ("table", "straight"):
+            raise ValueError(f"ik {ik!r} must be table or straight")
+        self.det, self.height, self.ik = det, height, ik
 
-    def __call__(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None, dofs=None) -> np.ndarray:
+        out = self._draw(n, rng, base)
+        if dofs is not None and base is not None:
+            merged = np.array(base, dtype=np.float64)
+            merged[:, dofs] = out[:, dofs]
+            out = merged
+        if self.ik == "table" and self.det.hands is not None and len(self.det.hands):
+            self._arms_ik(out, rng, dofs)
+        return np.clip(out, LIMITS_LO, LIMITS_HI)
+
+    def _arms_ik(self, out: np.ndarray, rng: np.random.Generator, dofs) -> None:
+        """Half of the draws point each arm's wrist at a hand candidate on its side
+        (look-up inverse kinematics on each draw's own torso)."""
+        H, hands = self.height, self.det.hands
+        shoulders, frames = _torso_frames(out, H)
+        for side in ("l", "r"):
+            d = _ARM_DOFS[side]
+            if dofs is not None and not np.isin(d, dofs).any():
+                continue
+            cfg, wrist, keys = arm_table(side)
+            use = np.flatnonzero(rng.random(len(out)) < 0.5)
+            if len(use) == 0:
+                continue
+            target = hands[rng.integers(len(hands), size=len(use))]
+            rel = np.einsum("nij,ni->nj", frames[use], target - shoulders[side][use]) / H
+            # the extremity is on the hand, the wrist half a hand (0.04 H) nearer the
+            # shoulder, and never beyond the arm's reach (0.332 H)
+            norm = np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
+            rel *= np.clip(norm - 0.04, 0.02, 0.325) / norm
+            k = _ik_keys(rel)
+            lo = np.searchsorted(keys, k, side="left")
+            hi = np.searchsorted(keys, k, side="right")
+            ok = hi > lo
+            if not ok.any():
+                continue
+            pick = lo[ok] + (rng.random(int(ok.sum())) * (hi[ok] - lo[ok])).astype(np.int64)
+            rows = use[ok]
+            if dofs is None:
+                out[np.ix_(rows, d)] = cfg[pick] + rng.normal(0, 0.05, (len(rows), 4))
+            else:
+                sel = np.isin(d, dofs)
+                out[np.ix_(rows, d[sel])] = cfg[pick][:, sel] + rng.normal(0, 0.05, (len(rows), int(sel.sum())))
+
+    def _draw(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None) -> np.ndarray:
         H, det = self.height, self.det
         out = np.tile(neutral_state(H), (n, 1)) if base is None else np.array(base, dtype=np.float64)
         stand = standing_root_height(H)
@@ -123,7 +236,7 @@ class Importance:
             out[:, DOF[f"{side}_sh_abd"]] = np.abs(rng.normal(0.1, 0.2, n))
             out[:, DOF[f"{side}_sh_rot"]] = rng.normal(0.0, 0.2, n)
             out[:, DOF[f"{side}_elbow"]] = np.abs(rng.normal(0.2, 0.3, n))
-            if det.hands is not None and len(det.hands):
+            if det.hands is not None and len(det.hands) and self.ik == "straight":
                 use = rng.random(n) < 0.5
                 for k in np.flatnonzero(use):
                     cy, sy = math.cos(yaw[k]), math.sin(yaw[k])
@@ -138,4 +251,4 @@ class Importance:
                     out[k, DOF[f"{side}_sh_flex"]] = f + rng.normal(0, 0.1)
                     out[k, DOF[f"{side}_sh_abd"]] = a + rng.normal(0, 0.1)
                     out[k, DOF[f"{side}_elbow"]] = abs(rng.normal(0.0, 0.15))
-        return np.clip(out, LIMITS_LO, LIMITS_HI)
+        return out

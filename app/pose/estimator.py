@@ -10,6 +10,12 @@ lengths follow the stature, estimated from the top of the person's blob over the
 first ``height_frames`` frames (``1.02 H``: the top of the head is a little above the
 stature of the model).
 
+The likelihood is the thesis's (Eqs. 6.13-6.25) with two additions for the fat voxels
+of a visual hull, both selectable (``coverage = 0, floor = 0`` is the thesis's): the
+coverage term and the floor prior of :mod:`app.pose.coverage`. The IAPF arm proposals
+solve the arm's inverse kinematics by look-up (``ik = "table"``, :mod:`app.pose.detections`;
+``"straight"`` the earlier straight arm).
+
 Methods: ``apf`` (§6.5, Alg. 3), ``shbm`` (SHBM-APF, §7.3), ``ddm`` (APF with DDM limb
 switching, §7.4) and ``shbm+ddm`` (both, the thesis's future work).
 """
@@ -23,7 +29,7 @@ from app.messages import JOINTS
 from app.pose.detections import Importance, detect
 from app.pose.filters import APF, SHBMAPF, LimbSwitch
 from app.pose.flesh import build_flesh
-from app.pose.likelihood import Scorer
+from app.pose.coverage import CoverageScorer
 from app.pose.model import BodyModel, neutral_state
 from app.pose.observation import observe
 
@@ -43,6 +49,10 @@ class PoseSettings:
     alpha: float = 0.5              # survival rate per layer
     gamma: int = 50                 # SHBM-APF: particles per new DoF
     importance_fraction: float = 0.2
+    coverage: float = 0.003         # sigma^2 of the coverage term (app.pose.coverage); 0 = the thesis's likelihood
+    coverage_partial: bool = True   # coverage also on SHBM-APF's partial models (H1, H2)
+    floor: float = 0.02             # m: the floor prior's deviation (app.pose.coverage); 0 = none (the thesis)
+    ik: str = "table"               # IAPF arm proposals: look-up inverse kinematics (table) or straight arms
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
@@ -56,6 +66,10 @@ class PoseSettings:
             raise ValueError(f"pose method {self.method!r} is not one of {', '.join(METHODS)}")
         if self.likelihood not in ("partitioned", "global"):
             raise ValueError(f"likelihood {self.likelihood!r} must be partitioned or global")
+        if self.ik not in ("table", "straight"):
+            raise ValueError(f"ik {self.ik!r} must be table or straight")
+        if not (self.coverage >= 0 and self.floor >= 0):
+            raise ValueError("coverage and floor must be >= 0 (0 switches them off)")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
 
@@ -99,7 +113,8 @@ class PersonPose:
         s = self.s
         self.height = height
         self.model = BodyModel(height)
-        self.scorer = Scorer(_flesh(height, s.voxel_size, s.density), s.likelihood)
+        self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
+                                     s.coverage_partial, s.floor)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):
             self.filter = SHBMAPF(gamma=s.gamma, **kw)
@@ -129,7 +144,7 @@ class PersonPose:
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface)
         self.scorer.set_observation(obs)
         det = detect(centres, self.height, velocity)
-        importance = Importance(det, self.height) if det is not None else None
+        importance = Importance(det, self.height, s.ik) if det is not None else None
         if self.state is None:
             start = neutral_state(self.height, (position[0], position[1], None))
             self.filter.reset(start, importance=importance)
@@ -142,6 +157,8 @@ class PersonPose:
                 self.switch.precheck(self.scorer, predicted)
             self.filter.frozen = self.switch.frozen()
         active = self.switch.part_mask() if self.switch is not None else None
+        if active is not None:
+            self.scorer.expected = active
         est = self.filter.step(self.scorer, active=active, importance=importance)
         if self.switch is not None:
             est = self.switch.update(self.scorer, self.filter, est)

@@ -65,7 +65,7 @@ class _Base:
         if n <= 0:
             return particles
         pick = self.rng.choice(len(particles), n, replace=False)
-        draws = importance(n, self.rng, particles[pick])
+        draws = importance(n, self.rng, particles[pick], dofs)
         keep = self.frozen.copy()
         if dofs is not None:
             keep |= ~np.isin(np.arange(N_DOF), dofs)
@@ -134,6 +134,11 @@ class SHBMAPF(_Base):
         super().__init__(**kw)
         self.models = [(_dofs(d), np.array([p in parts for p in PARTS])) for d, parts in models]
         self.sizes = [int(gamma * len(d)) for d, _ in self.models]   # Eq. 7.28
+        # DoFs a model's importance draws replace: its new ones; the last model's also the
+        # limbs' earlier DoFs, so that a whole arm proposed by inverse kinematics arrives
+        # in one piece (shoulder flexion and abduction with the rotation and elbow)
+        limbs = _dofs(_H2[2:])
+        self._drawn = [d for d, _ in self.models[:-1]] + [np.union1d(self.models[-1][0], limbs)]
         self.inner_layers, self.alpha_h, self.alpha_s = int(inner_layers), float(alpha_h), float(alpha_s)
         self.sets = None
         self.betas: list[float] = []
@@ -185,7 +190,7 @@ class SHBMAPF(_Base):
             for m in range(self.inner_layers):
                 P = propagate(P, sig0 * math.sqrt(self.alpha_h ** m), LIMITS_LO, LIMITS_HI, self.rng)
                 if m == 0:   # IAPF: each model's first layer takes some of its new DoFs from detections
-                    P = self._mix_importance(P, importance, None if i == 0 else self.models[i][0])
+                    P = self._mix_importance(P, importance, None if i == 0 else self._drawn[i])
                 lw = scorer.log_weights(P, act)
                 beta = annealing_exponent(lw, self.alpha_h)
                 self.betas.append(beta)

@@ -2,10 +2,13 @@
 and joints, and the estimator run over them with timings. Used by the tests and by
 ``smartroom bench pose``.
 
-Voxels come either from the simulator's body primitives (``source="true"``: the
-voxels whose centre lies inside a body, :mod:`app.simulation.occupancy`) or from
+Voxels come from the simulator's body primitives (``source="true"``: the
+voxels whose centre lies inside a body, :mod:`app.simulation.occupancy`), from
 shape from silhouette of the true silhouettes (``source="hull"``: what the
-reconstruction stage makes of perfect masks, with its visual-hull excess).
+reconstruction stage makes of perfect masks, with its visual-hull excess) or of the
+segmentation's MOG2 masks of the rendered (noisy) images (``source="mog2"``: what the
+pipeline really sees, the codec aside), at the mask scale the pipeline picks for the
+voxel size. ``tolerance`` (k of §2.2.4) and ``occlusion`` go to the reconstruction.
 Tracks are the true centroids (the tracking stage's job is scored elsewhere).
 """
 from __future__ import annotations
@@ -32,10 +35,18 @@ class ClipFrame:
     visible: dict                # id -> (15,) bool
 
 
+SOURCES = ("true", "hull", "mog2")
+
+
 def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, source: str = "true",
-                   zenithal: bool = True, hide=None) -> tuple[list[ClipFrame], object]:
+                   zenithal: bool = True, hide=None, tolerance: int = 1, occlusion: str = "none",
+                   surface: bool = False) -> tuple[list[ClipFrame], object]:
     """Frames ``frames`` (an iterable of indices) of a simulated scene; ``hide(frame,
-    centres) -> keep mask`` can remove voxels (a deliberate occlusion)."""
+    centres) -> keep mask`` can remove voxels (a deliberate occlusion). ``surface``:
+    hull voxels carry the reconstruction's visibility surface flags (as in the
+    pipeline) instead of the 6-neighbour boundary the observation computes. For
+    ``mog2`` every frame from 0 is segmented (the background model adapts over the
+    run), only ``frames`` are reconstructed."""
     from app.simulation.occupancy import true_occupancy
     from app.simulation.simulator import Simulator
 
@@ -43,34 +54,51 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
     sim = Simulator(scene, seed=seed, seconds=(max(frames) + 2) / 25.0, zenithal=zenithal)
     cal = sim.calibration
     dims = np.ceil((np.asarray(cal.room_max) - np.asarray(cal.room_min)) / voxel_size - 1e-9).astype(np.int64)
-    rec = None
-    if source == "hull":
+    if source not in SOURCES:
+        raise ValueError(f"voxel source {source!r} is not one of {', '.join(SOURCES)}")
+    rec = segs = None
+    if source in ("hull", "mog2"):
         from app.reconstruction import Reconstructor
-        size = (320, 240)
-        rec = Reconstructor(cal, voxel_size, mask_sizes={c: size for c in sim.cameras}, colouring="none", min_top=0.25)
+        from app.segmentation import CameraSegmenter, SegmentationParams, matched_scale
+        scale = matched_scale(cal, voxel_size)
+        sizes = {c.name: (c.width // scale, c.height // scale) for c in cal.cameras}
+        rec = Reconstructor(cal, voxel_size, mask_sizes=sizes, colouring="visibility" if surface else "none",
+                            min_top=0.25, tolerance=tolerance, occlusion=occlusion)
+        if source == "mog2":
+            segs = {c: CameraSegmenter(SegmentationParams(scale=scale), sim.background(c)) for c in sim.cameras}
+    wanted = set(frames)
     out = []
-    for i in frames:
+    for i in range(min(frames) if segs is None else 0, max(frames) + 1):
+        if i not in wanted and segs is None:
+            continue
         people = sim.people(i)
         gt = sim.groundtruth(i, people)
+        flags = None
         if source == "true":
             idx = true_occupancy(sim.body_record(i, people), cal.room_min, voxel_size, dims)
-            surface = None
-        elif source == "hull":
-            import cv2
-            _, labels, _ = sim.render(i, noise=False)
-            masks = {c: cv2.resize((labels[c] >= 0).astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
-                     .astype(bool) for c in sim.cameras}
-            idx, _, surface, _ = rec.reconstruct(masks, {})
         else:
-            raise ValueError(f"voxel source {source!r} is not true or hull")
+            import cv2
+            images, labels, _ = sim.render_people(i, people, noise=source == "mog2")
+            if source == "hull":
+                masks = {c: cv2.resize((labels[c] >= 0).astype(np.float32), sizes[c], interpolation=cv2.INTER_AREA)
+                         >= 0.5 for c in sim.cameras}
+            else:
+                masks = {c: segs[c].apply(images[c]) for c in sim.cameras}
+            if i not in wanted:
+                continue
+            colours = {c: cv2.resize(images[c], sizes[c], interpolation=cv2.INTER_AREA) for c in sim.cameras} \
+                if surface else {}
+            idx, _, flags, _ = rec.reconstruct(masks, colours)
+            flags = flags if surface and len(flags) == len(idx) else None
+        surface_flags = flags
         centres = np.asarray(cal.room_min) + (idx + 0.5) * voxel_size
         if hide is not None:
             keep = hide(i, centres)
             centres = centres[keep]
-            surface = None if surface is None or len(surface) == 0 else np.asarray(surface)[keep]
+            surface_flags = None if surface_flags is None else np.asarray(surface_flags)[keep]
         ids = [p["id"] for p in gt["people"]]
         out.append(ClipFrame(
-            frame=i, centres=centres, surface=surface, ids=ids,
+            frame=i, centres=centres, surface=surface_flags, ids=ids,
             positions=np.array([p["centroid"] for p in gt["people"]], dtype=float).reshape(-1, 3),
             truth={p["id"]: np.array([p["joints"][n] for n in JOINTS]) for p in gt["people"]},
             visible={p["id"]: np.array([p.get("visible", {}).get(n, True) for n in JOINTS]) for p in gt["people"]}))
