@@ -132,9 +132,10 @@ def test_pose_error_on_the_reconstructed_hull(hull_clip):
         res = run_clip(clip, _settings(cal, **kw))
         scores[name] = point_metrics(clip_errors(clip, res["estimates"])[5:], epsilon=0.1)
         print(name, "on the MOG2 hull:", scores[name]["mmta"], scores[name]["mmtp_mm"], scores[name]["mpjpe_mm"])
-    assert scores["shbm"]["mmta"] >= 0.85 and scores["shbm"]["mmtp_mm"] <= 45, scores["shbm"]
-    assert scores["apf"]["mmta"] >= 0.85 and scores["apf"]["mmtp_mm"] <= 55, scores["apf"]
-    assert scores["apf"]["mpjpe_mm"] < scores["apf thesis"]["mpjpe_mm"], scores
+    # measured: SHBM-APF 0.87 / 38 mm, APF 0.90 / 34 mm, APF with the thesis's likelihood 0.52 / 74 mm
+    assert scores["shbm"]["mmta"] >= 0.8 and scores["shbm"]["mmtp_mm"] <= 45, scores["shbm"]
+    assert scores["apf"]["mmta"] >= 0.8 and scores["apf"]["mmtp_mm"] <= 50, scores["apf"]
+    assert scores["apf"]["mpjpe_mm"] < 0.7 * scores["apf thesis"]["mpjpe_mm"], scores
 
 
 def test_recovery_after_a_corrupted_state(gesture_clip):
