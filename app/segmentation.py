@@ -14,8 +14,8 @@ silhouettes"):
 - ``shadow_floor``: dark shadows. MOG2 keeps as foreground the contact shadows at the
   feet, darker than its ``tau`` (0.5); pixels of the floor (:func:`floor_region`)
   whose colour is the background's darkened down to ``shadow_floor`` within
-  ``shadow_residual`` grey levels are shadow too, except next to (3x3) what stays
-  foreground (the feet and legs standing in that shadow).
+  ``shadow_residual`` grey levels are shadow too, except within 2 pixels of what
+  stays foreground (the feet and legs standing in that shadow).
 - ``fill_holes``: holes enclosed by a silhouette up to an area (stripes of clothing
   close to the room's colour) are filled.
 - ``second_chance``: a pixel next to the foreground that differs from the background
@@ -58,9 +58,9 @@ class SegmentationParams:
     bootstrap: int = 100            # frames at the automatic rate when there is no background image
     open_px: int = 0                # opening kernel (removes speckle, and thin limbs); 0 = none
     close_px: int = 5               # closing kernel (fills holes); 0 = none
-    shadow_floor: float = 0.0       # also shadow: down to this brightness ratio, background colour scaled; 0 = off
-    shadow_residual: float = 8.0    # ... when the colour is within this many grey levels of the scaled background
-    fill_holes: int = 0             # fill holes in the foreground up to this area (full-size pixels); 0 = none
+    shadow_floor: float = 0.15      # also shadow: down to this brightness ratio, background colour scaled; 0 = off
+    shadow_residual: float = 6.0    # ... when the colour is within this many grey levels of the scaled background
+    fill_holes: int = 400           # fill holes in the foreground up to this area (full-size pixels); 0 = none
     second_chance: float = 0.0      # a pixel next to the foreground that differs from the background by more
                                     # than this (grey levels, Euclidean over BGR) is foreground too; 0 = off
 
@@ -162,7 +162,7 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
 
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-_SQUARE = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
+_KEEP = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
 _NOWHERE = np.zeros((1, 1), dtype=np.uint8)
 
 
@@ -268,7 +268,7 @@ class CameraSegmenter:
             _shadow_and_weak(self.small, self.reference, raw, region, np.float32(p.shadow_floor),
                              np.float32(p.shadow_residual ** 2), np.float32(p.second_chance ** 2), fg, weak)
             if p.shadow_floor > 0:   # feet stand in their own contact shadow: keep the outline of what stays
-                fg |= cv2.dilate(fg, _SQUARE) & (raw == 255)
+                fg |= cv2.dilate(fg, _KEEP) & (raw == 255)
             if p.second_chance > 0:
                 fg |= cv2.dilate(fg, _CROSS) & weak
         else:

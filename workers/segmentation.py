@@ -49,9 +49,9 @@ class Segmentation(Worker):
         "bootstrap": 100,            # frames at the automatic rate without a background image
         "open_px": 0,
         "close_px": 5,
-        "shadow_floor": 0.0,         # dark shadows on the floor down to this brightness ratio (0: MOG2's test only)
-        "shadow_residual": 8.0,      # ... colour within this many grey levels of the darkened background
-        "fill_holes": 0,             # fill holes in a silhouette up to this area (full-size pixels; 0: none)
+        "shadow_floor": 0.15,        # dark shadows on the floor down to this brightness ratio (0: MOG2's test only)
+        "shadow_residual": 6.0,      # ... colour within this many grey levels of the darkened background
+        "fill_holes": 400,           # fill holes in a silhouette up to this area (full-size pixels; 0: none)
         "second_chance": 0.0,        # pixels next to the foreground farther than this from the background (0: off)
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
