@@ -299,9 +299,6 @@ SPEED_VARIANTS = (
     ("mog2 occluders", "mog2", {"tolerance": 0, "occlusion": "learnt"}),
     ("mog2 occluders/8", "mog2", {"tolerance": 0, "occlusion": "learnt", "learn_every": 8}),
     ("fused", "yuv", {"tolerance": 0, "method": "fused"}),
-    ("mog2 tight", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}),
-    ("mog2 tight/8", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
-                              "learn_every": 8}),
 )
 SPEED_BUDGET_MS = 30.0
 
