@@ -299,6 +299,9 @@ SPEED_VARIANTS = (
     ("mog2 occluders", "mog2", {"tolerance": 0, "occlusion": "learnt"}),
     ("mog2 occluders/8", "mog2", {"tolerance": 0, "occlusion": "learnt", "learn_every": 8}),
     ("fused", "yuv", {"tolerance": 0, "method": "fused"}),
+    ("mog2 tight", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}),
+    ("mog2 tight/8", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
+                              "learn_every": 8}),
 )
 SPEED_BUDGET_MS = 30.0
 
@@ -370,3 +373,98 @@ def format_speed_row(r: dict) -> str:
     return (f"{r['variant']:<20} {r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} "
             f"{r['segmentation_p50']:8.1f} {r['reconstruction_p50']:9.1f} {r['frame_p50']:9.1f} {r['frame_p95']:6.1f}  "
             f"{'ok' if r['frame_p50'] <= SPEED_BUDGET_MS else 'OVER'}")
+
+
+# -- issue 8: what k = 0 loses, and why --------------------------------------------------
+
+def _footprint_boxes(cam, centres: np.ndarray, size: float):
+    """Pixel boxes ``u0 v0 u1 v1`` (clipped to the image) of the projections of the
+    8 corners of voxel cubes of side ``size`` centred at ``centres`` (N, 3)."""
+    corners = np.array([[dx, dy, dz] for dx in (-.5, .5) for dy in (-.5, .5) for dz in (-.5, .5)]) * size
+    uv = cam.project((centres[:, None, :] + corners[None]).reshape(-1, 3)).reshape(len(centres), 8, 2)
+    lo = np.floor(uv.min(axis=1) + 0.5).astype(np.int64)
+    hi = np.floor(uv.max(axis=1) + 0.5).astype(np.int64)
+    return (np.clip(lo[:, 0], 0, cam.width - 1), np.clip(lo[:, 1], 0, cam.height - 1),
+            np.clip(hi[:, 0], 0, cam.width - 1), np.clip(hi[:, 1], 0, cam.height - 1))
+
+
+def hull_losses(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), warmup: int = 10,
+                verbose: bool = True) -> list[dict]:
+    """Where the body that ``k = 0`` loses goes (issue 8): for every true body voxel the
+    carving (centre-pixel test, no floor filter) does not keep, the cameras that call
+    it background, and for each such camera whether the voxel's footprint (the pixel
+    box of its projected cube) holds foreground (an *edge* miss: the silhouette's
+    outline cuts the voxel) or not (a *hidden* miss: furniture, or a hole in the
+    mask). Per voxel size and mask source (MOG2 at the matched scale, the true
+    silhouettes): the share of the body lost, and of the lost voxels the share with
+    only edge misses, with one hidden camera and with two or more."""
+    import cv2
+
+    from app.reconstruction import Reconstructor
+    from app.recording import Recording
+    from app.segmentation import matched_scale
+    from app.simulation.occupancy import load_bodies, true_occupancy
+
+    calib = Recording(recording).calibration
+    bodies = {r["frame"]: r for r in load_bodies(recording)}
+    rows = []
+    for vs in voxel_sizes:
+        scale = matched_scale(calib, vs)
+        _, segmented, _, indices = segment_frames(recording, frames, scale)
+        sources = (("mog2", [m for m, _ in segmented]), ("true", true_silhouettes(recording, len(indices), scale)))
+        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        for source, masks_list in sources:
+            r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", tolerance=0)
+            body = lost = 0
+            classes = np.zeros(3, dtype=np.int64)        # edge only, one hidden, 2+ hidden
+            missing = np.zeros(4, dtype=np.int64)        # cameras missing a lost voxel: 1, 2, 3, 4+
+            for n, (masks, i) in enumerate(zip(masks_list, indices)):
+                idx = r.carve(masks)
+                if n < warmup:
+                    continue
+                truth = true_occupancy(bodies[i], r.grid.origin, vs, r.grid.dims)
+                dims = np.asarray(r.grid.dims, dtype=np.int64)
+                flat = lambda a: (a[:, 0] * dims[1] + a[:, 1]) * dims[2] + a[:, 2]   # noqa: E731
+                gone = truth[~np.isin(flat(truth), flat(idx.astype(np.int64)))]
+                body += len(truth)
+                lost += len(gone)
+                if not len(gone):
+                    continue
+                pix = r.table.pixels(gone)
+                centres = r.grid.centres(gone)
+                hidden = np.zeros(len(gone), dtype=np.int64)
+                misses = np.zeros(len(gone), dtype=np.int64)
+                for c, name in enumerate(r.names):
+                    m = masks[name]
+                    seen = pix[:, c] >= 0
+                    bg = seen & ~m.reshape(-1)[np.maximum(pix[:, c], 0)]
+                    sel = np.flatnonzero(bg)
+                    misses[sel] += 1
+                    if not len(sel):
+                        continue
+                    u0, v0, u1, v1 = _footprint_boxes(r.mask_cameras[c], centres[sel], vs)
+                    sat = cv2.integral(m.astype(np.uint8), sdepth=cv2.CV_32S)
+                    count = sat[v1 + 1, u1 + 1] - sat[v0, u1 + 1] - sat[v1 + 1, u0] + sat[v0, u0]
+                    hidden[sel[count == 0]] += 1
+                classes += [(hidden == 0).sum(), (hidden == 1).sum(), (hidden >= 2).sum()]
+                missing += np.bincount(np.clip(misses, 1, 4) - 1, minlength=4)
+            row = {"voxel_size": vs, "mask_scale": scale, "masks": source, "lost": lost / max(body, 1),
+                   "edge_only": classes[0] / max(lost, 1), "one_hidden": classes[1] / max(lost, 1),
+                   "two_hidden": classes[2] / max(lost, 1),
+                   "cameras_missing": {str(k + 1) + ("+" if k == 3 else ""): round(v / max(lost, 1), 3)
+                                       for k, v in enumerate(missing)}}
+            rows.append(row)
+            if verbose:
+                print(format_losses_row(row), flush=True)
+    return rows
+
+
+LOSSES_HEADER = (f"{'voxel':>5} {'mask':>5} {'masks':<5} {'body lost':>9} {'edge only':>9} {'1 hidden':>8} "
+                 f"{'2+ hidden':>9}  cameras missing a lost voxel (1/2/3/4+)")
+
+
+def format_losses_row(r: dict) -> str:
+    cm = r["cameras_missing"]
+    return (f"{r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} {r['masks']:<5} {r['lost']:9.3f} "
+            f"{r['edge_only']:9.3f} {r['one_hidden']:8.3f} {r['two_hidden']:9.3f}  "
+            f"{cm['1']:.2f}/{cm['2']:.2f}/{cm['3']:.2f}/{cm['4+']:.2f}")

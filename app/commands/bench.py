@@ -44,6 +44,9 @@ def add_arguments(p) -> None:
     p.add_argument("--hull", action="store_true",
                    help="reconstruction: only the hull table of issue 8 (k=0, k=1, learnt occluders; MOG2 and "
                         "true silhouettes; volume, recall, fragmentation) on a simulated recording")
+    p.add_argument("--hull-losses", action="store_true",
+                   help="reconstruction: what k=0 loses of the body and why (edge or hidden misses per camera; "
+                        "MOG2 and true silhouettes) on a simulated recording")
     p.add_argument("--speed", action="store_true",
                    help="reconstruction: only issue 8's speed rows (segmentation + reconstruction + colour per frame "
                         "on one core for today's method, learnt occluders and the fused method) at the first voxel size")
@@ -118,6 +121,10 @@ def _reconstruction(args, out: Path) -> dict:
         print(reconstruction.SPEED_HEADER)
         rows = reconstruction.speed_table(run.recording, frames=frames + 10, voxel_size=sizes[0], min_top=args.min_top)
         return {"recording": run.recording, "frames": frames, "speed": rows}
+    if args.hull_losses:
+        print(reconstruction.LOSSES_HEADER)
+        rows = reconstruction.hull_losses(run.recording, frames=frames + 10, voxel_sizes=sizes)
+        return {"recording": run.recording, "frames": frames, "hull_losses": rows}
     if args.hull:
         rows = reconstruction.hull_table(run.recording, frames=frames + 10, voxel_sizes=sizes, min_top=args.min_top,
                                          verbose=False)
