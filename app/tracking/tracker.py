@@ -7,6 +7,8 @@ Each frame (:meth:`MultiTracker.update`):
    thesis (``refine``), each estimate is then re-centred in xy on the voxels of its
    share that are at least ``refine_min_z`` high (the upper body: the visual hull's
    lower part is fattened by phantom volume that pulls a centroid away from the body);
+   the particle filter's cloud moves with its estimate (``refine_particles``), as
+   Sparse Sampling's fresh samples are drawn around it (``ss_reseed``);
 2. deletion (§4.2.3): a target that falls within ``duplicate_distance`` of an older one
    for ``duplicate_frames`` frames is a duplicate; a target whose support (the weight of
    the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
@@ -85,6 +87,7 @@ class TrackerParams:
     reid_similarity: float = 0.5   # ... with reference histograms this similar (Bhattacharyya), colour filters
     refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
     refine_radius: float = 0.45
+    refine_particles: bool = True   # the particle filter's cloud moves with its re-centred estimate
     refine_min_z: float = 0.9      # re-centre (xy) on the voxels at least this high (the upper body; -inf: all)
     seed: int = 0
 
@@ -160,6 +163,8 @@ class MultiTracker:
                 x = acc / k
                 if self.p.refine_min_z > -np.inf:   # the upper body places the target in xy only
                     x[2] = t.target.x[2]
+                if self.p.refine_particles and getattr(t.target, "particles", None) is not None:
+                    t.target.particles = t.target.particles + (x - t.target.x)   # the cloud follows
                 t.target.x = x
 
     def _make(self, position, scene):
