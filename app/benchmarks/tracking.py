@@ -34,8 +34,10 @@ HEADER = (f"{'recording':<11}{'voxel':>6} {'filter':<10}{'N':>5}{'MOTP mm':>9}{'
 
 def parse_configs(text: str) -> list[tuple]:
     """``naive,ss_colour:400,pf_raw:100,ss_colour:400:thesis`` -> configs; ``:thesis``
-    runs the filter as the thesis has it (no re-centring on the voxel share, no fresh
-    samples in Sparse Sampling) to show what the improvements change."""
+    runs the filter as the thesis has it (no re-centring on the voxel share, so no moving
+    of the particle cloud either, no fresh samples in Sparse Sampling) to show what the
+    improvements change; the track life (creation, deletion, re-identification) is the
+    same for every row."""
     from app.errors import InputError
     from app.tracking.tracker import FILTERS
 
