@@ -52,6 +52,7 @@ class PoseSettings:
     coverage: float = 0.003         # sigma^2 of the coverage term (app.pose.coverage); 0 = the thesis's likelihood
     coverage_partial: bool = True   # coverage also on SHBM-APF's partial models (H1, H2)
     floor: float = 0.02             # m: the floor prior's deviation (app.pose.coverage); 0 = none (the thesis)
+    heading: float = 0.6            # rad: deviation of the yaw from the track's walking direction; 0 = none
     ik: str = "table"               # IAPF arm proposals: look-up inverse kinematics (table) or straight arms
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
@@ -68,8 +69,8 @@ class PoseSettings:
             raise ValueError(f"likelihood {self.likelihood!r} must be partitioned or global")
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
-        if not (self.coverage >= 0 and self.floor >= 0):
-            raise ValueError("coverage and floor must be >= 0 (0 switches them off)")
+        if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0):
+            raise ValueError("coverage, floor and heading must be >= 0 (0 switches them off)")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
 
@@ -107,6 +108,7 @@ class PersonPose:
         self.switch = None
         self.state = None
         self.last_position = None
+        self.velocity = None
         self.frames = 0
 
     def _make(self, height: float) -> None:
@@ -129,6 +131,8 @@ class PersonPose:
         velocity = None
         if self.last_position is not None:
             velocity = (position - self.last_position) * 25.0
+            # smoothed for the heading prior (a tracker's centroid jitters by a centimetre a frame)
+            self.velocity = velocity if self.velocity is None else 0.7 * self.velocity + 0.3 * velocity
         if len(centres) >= 30:
             self.tops.append(float(centres[:, 2].max()))
         if self.filter is None:
@@ -143,6 +147,9 @@ class PersonPose:
                 self.filter.particles = keep.particles
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface)
         self.scorer.set_observation(obs)
+        self.scorer.heading = None
+        if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:
+            self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
         det = detect(centres, self.height, velocity)
         importance = Importance(det, self.height, s.ik) if det is not None else None
         if self.state is None:
