@@ -38,6 +38,20 @@ _NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k 
 
 
 @njit(cache=True, nogil=True)
+def _untaken(samples, fresh, taken):
+    """Which of ``fresh`` lie on no voxel of ``samples`` (``taken``: a zeroed scratch
+    grid, left zeroed)."""
+    for a in range(samples.shape[0]):
+        taken[samples[a, 0], samples[a, 1], samples[a, 2]] = 1
+    out = np.empty(fresh.shape[0], dtype=np.bool_)
+    for a in range(fresh.shape[0]):
+        out[a] = taken[fresh[a, 0], fresh[a, 1], fresh[a, 2]] == 0
+    for a in range(samples.shape[0]):
+        taken[samples[a, 0], samples[a, 1], samples[a, 2]] = 0
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _propagate(parents, offsets, starts, neighbours, taken, out):
     """Place replicas ``parents + offsets`` on free voxels (Fig. 4.8); returns how many."""
     nx, ny, nz = taken.shape
@@ -137,9 +151,7 @@ class SparseTarget:
         m = _propagate(parents, offsets, starts, _NEIGHBOURS, taken, placed)
         samples = placed[:m]
         if len(fresh):   # fresh samples on voxels no replica took
-            dims = np.asarray(scene.dims, dtype=np.int64)
-            key = lambda a: (a[:, 0] * dims[1] + a[:, 1]) * dims[2] + a[:, 2]  # noqa: E731
-            samples = np.concatenate([samples, fresh[~np.isin(key(fresh), key(samples))]])
+            samples = np.concatenate([samples, fresh[_untaken(samples, fresh, taken)]])
             m = len(samples)
         raw = np.zeros(m)
         col = np.zeros(m)
