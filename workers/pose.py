@@ -12,9 +12,9 @@ one worker carries in real time is a layout matter: several pose workers, each w
 ``method``: ``shbm`` (SHBM-APF, §7.3, default), ``apf`` (§6.5), ``ddm`` (APF with DDM
 limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density factor
 (Eq. 6.26); ``likelihood`` ``partitioned`` (Eqs. 6.23-6.25) or ``global`` (6.17-6.22);
-``coverage``, ``floor`` and ``ik`` the additions for visual hulls
+``coverage``, ``floor``, ``heading`` and ``ik`` the additions for visual hulls
 (:mod:`app.pose.coverage`, :mod:`app.pose.detections`; ``coverage: 0, floor: 0,
-ik: straight`` is the thesis's likelihood with the earlier proposals).
+heading: 0, ik: straight`` is the thesis's likelihood with the earlier proposals).
 """
 from __future__ import annotations
 
@@ -46,6 +46,7 @@ class Pose(Worker):
         "coverage": 0.003,          # sigma^2 of the coverage term for fat hulls (app.pose.coverage); 0 = thesis
         "coverage_partial": True,   # coverage also on SHBM-APF's partial models
         "floor": 0.02,              # m: floor prior on the lower ankle; 0 = none (thesis)
+        "heading": 0.6,             # rad: yaw prior along the track's walking direction; 0 = none (thesis)
         "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
@@ -54,7 +55,8 @@ class Pose(Worker):
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
                "ik": ("table", "straight")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
-              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0)}
+              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
+              "heading": (0.0, 10.0)}
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -64,7 +66,7 @@ class Pose(Worker):
                                          particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
                                          importance_fraction=float(p["importance_fraction"]),
                                          coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
-                                         floor=float(p["floor"]), ik=str(p["ik"]),
+                                         floor=float(p["floor"]), heading=float(p["heading"]), ik=str(p["ik"]),
                                          reach=float(p["reach"]), seed=int(p["seed"]))
             self.settings.validate()
         except (TypeError, ValueError) as exc:

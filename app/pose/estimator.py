@@ -10,9 +10,10 @@ lengths follow the stature, estimated from the top of the person's blob over the
 first ``height_frames`` frames (``1.02 H``: the top of the head is a little above the
 stature of the model).
 
-The likelihood is the thesis's (Eqs. 6.13-6.25) with two additions for the fat voxels
-of a visual hull, both selectable (``coverage = 0, floor = 0`` is the thesis's): the
-coverage term and the floor prior of :mod:`app.pose.coverage`. The IAPF arm proposals
+The likelihood is the thesis's (Eqs. 6.13-6.25) with three additions for the fat voxels
+of a visual hull, all selectable (``coverage = 0, floor = 0, heading = 0`` is the
+thesis's): the coverage term, the floor prior and the heading prior (the track's
+walking direction) of :mod:`app.pose.coverage`. The IAPF arm proposals
 solve the arm's inverse kinematics by look-up (``ik = "table"``, :mod:`app.pose.detections`;
 ``"straight"`` the earlier straight arm).
 
