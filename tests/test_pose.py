@@ -134,7 +134,8 @@ def test_pose_error_on_the_reconstructed_hull(hull_clip):
         E = clip_errors(clip, res["estimates"])
         assert not np.isnan(E).any()
         scores[method] = point_metrics(E[5:], epsilon=0.1)
-        print(method, "on the MOG2 hull:", scores[method]["mmta"], scores[method]["mmtp_mm"], scores[method]["mpjpe_mm"])
+        m = scores[method]
+        print(method, "on the MOG2 hull:", m["mmta"], m["mmtp_mm"], m["mpjpe_mm"])
     # measured: SHBM-APF 0.87-0.92 / 31-38 mm, APF 0.81-0.90 / 34-40 mm (code versions and seeds)
     assert scores["shbm"]["mmta"] >= 0.8 and scores["shbm"]["mmtp_mm"] <= 45, scores["shbm"]
     assert scores["apf"]["mmta"] >= 0.7 and scores["apf"]["mmtp_mm"] <= 50, scores["apf"]
