@@ -33,16 +33,18 @@ CONFIGS = (
 def bench_pose(scenes=("gesture1", "walk1"), frames: int = 75, start: int = 0, voxel_size: float = 0.02,
                densities=(1, 2, 3), methods=("apf", "shbm", "ddm"), source: str = "true", warmup: int = 5,
                epsilon: float = 0.1, verbose: bool = True, tolerance: int = 1, occlusion: str = "none",
-               settings: dict | None = None, seeds=(0,)) -> list[dict]:
+               settings: dict | None = None, seeds=(0,), surface: bool = False) -> list[dict]:
     """``source``: ``true`` (body voxels), ``hull`` (shape from the true silhouettes) or
     ``mog2`` (shape from the segmentation's MOG2 masks of the rendered images, the
     pipeline's reconstruction) with ``tolerance`` k and ``occlusion``; ``settings``:
     :class:`PoseSettings` overrides (e.g. ``{"coverage": 0}`` for the thesis's
-    likelihood); ``seeds``: filter seeds, errors pooled over them."""
+    likelihood); ``seeds``: filter seeds, errors pooled over them; ``surface``: hull
+    voxels carry the reconstruction's visibility surface flags, as in the pipeline
+    (default: the 6-neighbour boundary the observation computes)."""
     clips = {}
     for scene in scenes:
         clips[scene], cal = simulated_clip(scene, range(start, start + frames), voxel_size, source=source,
-                                           tolerance=tolerance, occlusion=occlusion)
+                                           tolerance=tolerance, occlusion=occlusion, surface=surface)
     rows = []
     for label, method, extra in CONFIGS:
         if method not in methods:

@@ -59,6 +59,8 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-set", metavar="K=V,...", default="",
                    help="pose: PoseSettings overrides, e.g. coverage=0 (the thesis's likelihood) or ik=straight")
     p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
+    p.add_argument("--pose-surface", action="store_true",
+                   help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
 
 
 def _bus(args, out: Path) -> dict:
@@ -172,7 +174,8 @@ def _pose(args, out: Path) -> dict:
             settings[key] = value
     rows = pose.bench_pose(scenes=tuple(args.pose_scenes.split(",")), frames=frames, voxel_size=voxel,
                            densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels,
-                           tolerance=args.tolerance, settings=settings, seeds=tuple(range(args.pose_seeds)))
+                           tolerance=args.tolerance, settings=settings, seeds=tuple(range(args.pose_seeds)),
+                           surface=args.pose_surface)
     return {"frames": frames, "voxel_size": voxel, "rows": rows}
 
 
