@@ -2,7 +2,8 @@
 frame by frame, as the pipeline's workers run them (masks and colour at the scale matched
 to the voxel size). Training the classifier and ``smartroom bench tracking`` use it so
 that every tracker configuration sees the same voxels; the result is kept in a cache
-file (``$SMARTROOM_CACHE/voxels``, not in the repository) keyed by recording and size.
+file (``$SMARTROOM_CACHE/voxels``, not in the repository) keyed by recording, size and a hash of the
+segmentation and reconstruction code.
 """
 from __future__ import annotations
 
@@ -25,10 +26,20 @@ class VoxelFrame:
         self.indices, self.colours, self.surface = indices, colours, surface
 
 
+def _code_version() -> str:
+    """A hash of the code that makes the voxels (segmentation and reconstruction), so a
+    change there never replays voxels the old code made."""
+    app = Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for f in [app / "segmentation.py", *sorted((app / "reconstruction").glob("*.py"))]:
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def _cache_file(recording: Path, voxel_size: float, frames: int | None) -> Path:
     root = Path(os.environ.get("SMARTROOM_CACHE", Path.home() / ".cache" / "smartroom")).expanduser() / "voxels"
     stamp = (recording / "calibration.yaml").stat().st_mtime_ns
-    key = hashlib.sha1(f"{recording.resolve()}|{stamp}|{voxel_size:.4f}|{frames}|v1".encode()).hexdigest()[:16]
+    key = hashlib.sha1(f"{recording.resolve()}|{stamp}|{voxel_size:.4f}|{frames}|{_code_version()}".encode()).hexdigest()[:16]
     return root / f"{recording.name}-{int(round(voxel_size * 1000))}mm-{key}.npz"
 
 
@@ -66,7 +77,7 @@ def recording_voxels(recording, voxel_size: float, frames: int | None = None, ca
 def _compute(recording: Path, voxel_size: float, frames, progress):
     from app.reconstruction import Reconstructor
     from app.recording import Recording
-    from app.segmentation import CameraSegmenter, SegmentationParams, estimate_background, matched_scale
+    from app.segmentation import SegmentationParams, camera_segmenter, estimate_background_robust, matched_scale
 
     rec = Recording(recording)
     calib = rec.calibration
@@ -74,8 +85,10 @@ def _compute(recording: Path, voxel_size: float, frames, progress):
     params = SegmentationParams(scale=scale)
     segs = {}
     for cam in rec.cameras:
-        bg = rec.background(cam)
-        segs[cam] = CameraSegmenter(params, bg if bg is not None else estimate_background(rec.sample(cam, 25)))
+        bg = rec.background(cam)   # as the segmentation worker: people left out, the floor's shadow test
+        if bg is None:
+            bg, _ = estimate_background_robust(rec.sample(cam, 25))
+        segs[cam] = camera_segmenter(params, bg, calib, cam)
     fps = float(getattr(calib, "fps", 25.0) or 25.0)
     recon = None
     out = []
