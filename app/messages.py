@@ -28,7 +28,7 @@ __all__ = [
 ]
 
 MAGIC = b"SRM"
-VERSION = 1
+VERSION = 2   # 2: Voxels carry per-voxel camera misses
 _HEADER = struct.Struct("<3sBBBHqddI")
 _ALIGN = 8
 _DTYPES = {np.dtype(d).str for d in ("u1", "i1", "u2", "i2", "u4", "i4", "u8", "i8", "f4", "f8", "?")}
@@ -298,13 +298,16 @@ class Mask(Message):
 @dataclass(kw_only=True)
 class Voxels(Message):
     """Occupied voxels of one frame (§2.2.4): grid indices (N, 3), colours (N, 3) RGB uint8
-    (empty when not coloured) and the surface flag (N,) (``V^S``; empty when not computed).
+    (empty when not coloured), the surface flag (N,) (``V^S``; empty when not computed) and
+    ``misses`` (N,) uint8, how many of the frame's cameras did not see the voxel as
+    foreground (empty when not computed): with tolerance k every voxel has misses <= k,
+    and the voxels with 0 are the k = 0 hull, tighter, for consumers that want it (pose).
 
     Voxel ``(i, j, k)`` has its centre at ``origin + (index + 0.5) * voxel_size``.
     """
 
     TYPE_ID: ClassVar[int] = 3
-    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface")
+    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "misses")
     voxel_size: float = 0.0
     origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     dims: list = field(default_factory=lambda: [0, 0, 0])
@@ -312,10 +315,14 @@ class Voxels(Message):
     indices: np.ndarray = None
     colours: np.ndarray = None
     surface: np.ndarray = None
+    misses: np.ndarray = None
 
     def validate(self) -> None:
         super().validate()
-        check_voxel_fields(self)
+        n = check_voxel_fields(self)
+        misses = _array(self, "misses", "|u1", (n,), allow_empty=True)
+        if misses.size and int(misses.max()) > max(len(self.cameras), 1):
+            raise MessageError("Voxels: misses exceed the number of cameras")
 
     def centres(self) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3)."""
