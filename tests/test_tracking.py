@@ -177,14 +177,14 @@ def test_scores_on_a_short_scene_of_three_people():
 
 
 def test_a_person_who_briefly_fails_the_person_test_keeps_their_id():
-    """A person crouches for 24 frames (the blob drops to 1.2 m: the classifier says no
+    """A person crouches for 24 frames (the blob drops to 1.0 m: the classifier says no
     person, the track ends after ``no_person_frames``) and stands up again: with
     re-identification the new track takes the ended track's id; without (``reid_frames
     = 0``, the thesis's track life) the person comes back under a new id."""
     frames, truth = [], {}
     for f in range(80):
         x = 1.5 + 1.5 * f / 79
-        height = 1.2 if 20 <= f < 44 else 1.72
+        height = 1.0 if 20 <= f < 44 else 1.72
         frames.append(frame_of(f, [(_cylinder(x, 2.0, height=height), RED, BLUE),
                                    (_cylinder(1.0, 3.4), GREEN, GREY)]))
         truth[f] = {1: (x, 2.0), 2: (1.0, 3.4)}
