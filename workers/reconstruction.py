@@ -52,6 +52,7 @@ class Reconstruction(Worker):
         "min_top": 0.25,             # drop blobs lower than this (m): floor shadows; 0 = thesis (keep all)
         "occlusion": "none",         # none (§2.2.4) or learnt: occluder masks learnt over the run (Guan et al. 2006)
         "learn_every": 1,            # learnt occluders: learn from every n-th frame (0: stop learning)
+        "occlusion_evidence": 4,     # learnt occluders: frames of evidence that make a pixel an occluder
         "occlusion_top": 0.0,        # learnt occluders: only below this height (m; furniture is low); 0 = no limit
         "footprint": 0.0,            # silhouette-edge test: accept a voxel when this fraction of the 3x3 pixels
                                      # around its centre pixel is foreground; 0 = the centre pixel (§2.2.4)
@@ -60,6 +61,7 @@ class Reconstruction(Worker):
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
               "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
+              "occlusion_evidence": (1, 100000),
               "footprint": (0.0, 1.0), "min_component": (0, 1_000_000)}
     CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none")}
 
@@ -89,6 +91,7 @@ class Reconstruction(Worker):
                 tolerance=p["tolerance"], min_views=p["min_views"], method=p["method"],
                 colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"],
                 occlusion=p["occlusion"], learn_every=p["learn_every"], occlusion_top=p["occlusion_top"],
+                occlusion_evidence=p["occlusion_evidence"],
                 footprint=p["footprint"], min_component=p["min_component"])
         except ValueError as exc:
             raise InputError(f"reconstruction: {exc}") from None

@@ -152,6 +152,9 @@ HULL_VARIANTS = (
     # the silhouette-edge (footprint) test alone, and with low learnt occluders (issue 8)
     ("k=0 edge", {"tolerance": 0, "footprint": 0.34}),
     ("tight", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}),
+    # the same learning from every 4th frame, one piece of evidence enough: a quarter of the learning's cost
+    ("tight/4", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0, "learn_every": 4,
+                 "occlusion_evidence": 1}),
 )
 
 
@@ -302,6 +305,8 @@ SPEED_VARIANTS = (
     ("mog2 tight", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}),
     ("mog2 tight/8", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
                               "learn_every": 8}),
+    ("mog2 tight/4", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
+                              "learn_every": 4, "occlusion_evidence": 1}),
 )
 SPEED_BUDGET_MS = 30.0
 
