@@ -57,6 +57,8 @@ class Reconstruction(Worker):
         "footprint": 0.0,            # silhouette-edge test: accept a voxel when this fraction of the 3x3 pixels
                                      # around its centre pixel is foreground; 0 = the centre pixel (§2.2.4)
         "min_component": 0,          # drop connected components of fewer voxels (ghosts); 0 = keep all
+        "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
+                                     # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
@@ -92,7 +94,7 @@ class Reconstruction(Worker):
                 colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"],
                 occlusion=p["occlusion"], learn_every=p["learn_every"], occlusion_top=p["occlusion_top"],
                 occlusion_evidence=p["occlusion_evidence"],
-                footprint=p["footprint"], min_component=p["min_component"])
+                footprint=p["footprint"], min_component=p["min_component"], misses=bool(p["misses"]))
         except ValueError as exc:
             raise InputError(f"reconstruction: {exc}") from None
         self.calibration = calib
@@ -253,7 +255,8 @@ class Reconstruction(Worker):
         self.publish(self.keys.voxels(), Voxels(
             frame=frame, stamp=any_mask.stamp, t=any_mask.t, voxel_size=float(grid.voxel_size),
             origin=[float(v) for v in grid.origin], dims=[int(v) for v in grid.dims],
-            cameras=sorted(mask_arrays), indices=indices, colours=colours, surface=surface))
+            cameras=sorted(mask_arrays), indices=indices, colours=colours, surface=surface,
+            misses=self.reconstructor.misses))
 
     def extra_figures(self) -> dict:
         recent = {k: v[-50:] for k, v in getattr(self, "timings", {}).items()}

@@ -19,6 +19,7 @@ from calibration import Calibration
 from .carving import (MAX_CAMERAS, carve_cells, carve_cells_occluded, classify_cells, dissent_cells, fill_cells,
                       mask_votes, occluded_votes)
 from .colouring import COLOURINGS, VoxelColourer
+from .consensus import count_misses, select_misses
 from .floor import FloorBlobFilter
 from .footprint import GhostFilter, accept_map
 from .fused import chi2_thresholds, classify_cells_fused
@@ -89,6 +90,9 @@ class Reconstructor:
     min_component : drop connected components of fewer voxels than this from the
         published voxels (ghosts where silhouette cones of different people meet); 0
         (the thesis) keeps all. Applied after ``min_top``.
+    misses : also count, per published voxel, the cameras that call it background
+        (:mod:`.consensus`; the ``k = 0`` subset of a ``k = 1`` hull is ``misses == 0``);
+        after :meth:`reconstruct` they are in :attr:`misses` (N,) uint8 (empty when off).
     """
 
     def __init__(self, calibration: Calibration, voxel_size: float, mask_sizes: Mapping | None = None,
@@ -100,7 +104,7 @@ class Reconstructor:
                  occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
                  abstain_support: bool = True, alpha: float = 0.99, samples: str = "all",
                  footprint: float = 0.0, footprint_radius: int = 1, min_component: int = 0,
-                 occlusion_top: float = 0.0):
+                 occlusion_top: float = 0.0, misses: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -182,6 +186,8 @@ class Reconstructor:
         self.abstain_support = bool(abstain_support)
         self.learn_every = int(learn_every)
         self.frames_carved = 0
+        self.count_misses = bool(misses)
+        self.misses = np.zeros(0, dtype=np.uint8)
         views = t.views_per_brick()
         self._root_cells = np.flatnonzero(views >= self.min_views).astype(np.int32)
         self._all_bricks = np.arange(self.layout.n_bricks, dtype=np.int32)
@@ -389,15 +395,24 @@ class Reconstructor:
         t0 = time.perf_counter()
         cams = self._upload_masks(masks)
         indices = self._indices(self._carve_keys(cams))
+        tm = time.perf_counter()
+        misses = self._count_misses(indices) if self.count_misses else None   # before occluders learn
+        tm = time.perf_counter() - tm
         self._after_carving(cams)
         t1 = time.perf_counter()
-        timings = {"carve": (t1 - t0) * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
+        timings = {"carve": (t1 - t0) * 1e3 - tm * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
         if self.floor is not None or self.ghosts is not None:
+            carved = indices
             if self.floor is not None:
                 indices = self.floor(indices)
             if self.ghosts is not None:
                 indices = self.ghosts(indices)
+            if misses is not None:
+                misses = select_misses(carved, indices, misses, self.grid.dims)
             timings["floor"] = (time.perf_counter() - t1) * 1e3
+        self.misses = misses if misses is not None else np.zeros(0, dtype=np.uint8)
+        if misses is not None:
+            timings["misses"] = tm * 1e3
         images = images or {}
         imgs = [images.get(n) for n in self.names]
         if self.method == "fused":
@@ -406,6 +421,14 @@ class Reconstructor:
         timings.update(tc)
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return indices, colours, surface, timings
+
+    def _count_misses(self, indices: np.ndarray) -> np.ndarray:
+        """Cameras calling each voxel background, as the final carving level reads them."""
+        occ = self.occluders
+        if occ is None:
+            return count_misses(indices, self.layout, self.table.lut, self._votes)
+        return count_misses(indices, self.layout, self.table.lut, self._votes, self._depth_coef, occ.occ_depth,
+                            self._k_top)
 
     def _warm_up(self) -> None:
         """Run every kernel once on an empty frame and on a tiny blob (numba compiles or
