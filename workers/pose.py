@@ -15,6 +15,15 @@ limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density facto
 ``coverage``, ``floor``, ``heading`` and ``ik`` the additions for visual hulls
 (:mod:`app.pose.coverage`, :mod:`app.pose.detections`; ``coverage: 0, floor: 0,
 heading: 0, ik: straight`` is the thesis's likelihood with the earlier proposals).
+
+``voxels``: ``consensus`` (default) poses every person on the voxels every camera of the
+frame calls foreground (``Voxels.misses == 0``: the ``k = 0`` subset of the pipeline's
+``k = 1`` hull, 1.4-2x the body instead of 5-7x, :mod:`app.reconstruction.consensus`),
+their surface recomputed as the subset's 6-neighbour boundary (the reconstruction's
+visibility flags are the surface of the whole hull); ``all`` the whole hull with its
+flags (the thesis: one hull for everything). The tracks still come from the whole hull
+(the tracker and its person classifier need it). Voxels without ``misses`` (an older
+reconstruction, ``misses: false``) are posed whole.
 """
 from __future__ import annotations
 
@@ -50,10 +59,11 @@ class Pose(Worker):
         "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
+        "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull
         "seed": 0,
     }
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
-               "ik": ("table", "straight")}
+               "ik": ("table", "straight"), "voxels": ("consensus", "all")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0)}
@@ -82,6 +92,7 @@ class Pose(Worker):
         self.tracks: dict[int, Tracks] = {}
         self.done = -1
         self.people_counts: list[int] = []
+        self.kept: list[float] = []    # share of the frame's voxels posed on (consensus)
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
         if self.settings.ik == "table":
@@ -132,13 +143,20 @@ class Pose(Worker):
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         est = self._estimator(vox)
+        centres = vox.centres()
         surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
+        misses = vox.misses
+        if self.params["voxels"] == "consensus" and misses is not None and len(misses) == len(centres) \
+                and len(misses):
+            keep = misses == 0
+            centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
+            self.kept.append(float(keep.mean()))
         # every track takes part in the voxel ownership; only this worker's share is posed
         only = None
         if self.share is not None:
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
-        result = est.update(vox.centres(), surface, ids, positions, only=only)
+        result = est.update(centres, surface, ids, positions, only=only)
         order = sorted(result)
         self.people_counts.append(len(order))
         joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)
@@ -149,4 +167,6 @@ class Pose(Worker):
 
     def extra_figures(self) -> dict:
         c = getattr(self, "people_counts", [])
-        return {"people": int(c[-1]) if c else 0, "method": self.params.get("method")}
+        kept = getattr(self, "kept", [])[-50:]
+        return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
+                "consensus_share": round(float(np.mean(kept)), 3) if kept else None}
