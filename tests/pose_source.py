@@ -4,7 +4,7 @@ so the pose worker is tested over the bus before and apart from the tracking sta
 
 The clip file (``.npz``): ``voxel_size``, ``origin`` (3,), ``dims`` (3,), ``frames``
 (F,), ``offsets`` (F + 1,), ``indices`` (N, 3), ``track_offsets`` (F + 1,), ``ids``
-(T,), ``positions`` (T, 3).
+(T,), ``positions`` (T, 3); optional ``misses`` (N,) uint8 (:class:`Voxels` ``misses``).
 """
 import time
 
@@ -37,7 +37,8 @@ class ClipSource(Worker):
         self.publish(self.keys.voxels(), Voxels(
             frame=frame, stamp=time.time(), t=t, voxel_size=float(c["voxel_size"]),
             origin=[float(v) for v in c["origin"]], dims=[int(v) for v in c["dims"]], cameras=[],
-            indices=idx, colours=np.zeros((0, 3), np.uint8), surface=np.zeros(0, bool)))
+            indices=idx, colours=np.zeros((0, 3), np.uint8), surface=np.zeros(0, bool),
+            misses=(c["misses"][c["offsets"][k]:c["offsets"][k + 1]] if "misses" in c else np.zeros(0, np.uint8))))
         a, b = c["track_offsets"][k], c["track_offsets"][k + 1]
         time.sleep(0.01)   # tracks follow the voxels, as from the tracking stage
         self.publish(self.keys.tracks(), Tracks(frame=frame, stamp=time.time(), t=t,
