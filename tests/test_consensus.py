@@ -78,6 +78,28 @@ def test_misses_follow_the_floor_filter_and_are_off_by_default(calib, masks):
     assert off.misses.size == 0
 
 
+def test_misses_with_learnt_occluders_count_no_abstention(calib):
+    """A static occluder hides the legs from cam0 frame after frame: once learnt, cam0
+    abstains there, so the k = 0 carving keeps the legs and none of its voxels has a
+    miss (an abstention is no miss); with k = 1 no voxel has more than one."""
+    k0 = Reconstructor(calib, VOXEL, tolerance=0, colouring="none", misses=True, occlusion="learnt",
+                       occlusion_evidence=2)
+    k1 = Reconstructor(calib, VOXEL, tolerance=1, colouring="none", misses=True, occlusion="learnt",
+                       occlusion_evidence=2)
+    counts = []
+    for f in range(10):
+        m, _ = Scene([person(1.5 + 0.05 * f, 2.0, facing_deg=0.0)]).frame(calib.cameras)
+        m = dict(m)
+        m["cam0"] = m["cam0"].copy()
+        m["cam0"][m["cam0"].shape[0] // 2:, :] = False
+        idx, _, _, _ = k0.reconstruct(m)
+        k1.reconstruct(m)
+        assert len(k0.misses) == len(idx) and not k0.misses.any()
+        assert k1.misses.max() <= 1
+        counts.append(len(idx))
+    assert k0.occluder_share()["cam0"] > 0.005 and counts[-1] > 1.05 * counts[0]   # the legs came back
+
+
 # -- the pose stage on the consensus subset ------------------------------------------------
 POSE_FRAMES = range(0, 24)
 
