@@ -387,7 +387,8 @@ class Reconstructor:
         Returns ``(indices, colours, surface, timings)``: occupied voxels (N, 3) uint16
         sorted by flat id, colours (N, 3) RGB uint8 (empty for ``colouring="none"``;
         zero on interior voxels), surface flags (N,) bool (empty for ``"none"`` and
-        ``"naive"``) and ``{"carve", "floor", "surface", "colour", "total"}`` in ms.
+        ``"naive"``) and ``{"carve", "floor", "surface", "colour", "total"}`` in ms (and
+        ``"misses"`` with ``misses=True``; the counts are then in :attr:`misses`).
         """
         unknown = set(masks) - set(self.names)
         if unknown:
