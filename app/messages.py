@@ -370,16 +370,20 @@ class Tracks(Message):
 @dataclass(kw_only=True)
 class Poses(Message):
     """Body poses of one frame: track ids (N,), joints (N, 15, 3) in :data:`JOINTS`
-    order and the active flag of each joint (N, 15)."""
+    order and the active flag of each joint (N, 15). ``worker`` names the pose worker
+    that sent them (several may share a frame's tracks: :mod:`app.pose_shares`)."""
 
     TYPE_ID: ClassVar[int] = 5
     ARRAYS: ClassVar[tuple[str, ...]] = ("tracks", "joints", "active")
+    worker: str = ""
     tracks: np.ndarray = None
     joints: np.ndarray = None
     active: np.ndarray = None
 
     def validate(self) -> None:
         super().validate()
+        if not isinstance(self.worker, str) or len(self.worker) > 64:
+            raise MessageError("Poses: worker is not a name")
         tracks = _array(self, "tracks", "<i4 <i8 <u4", (None,), allow_empty=True)
         n = tracks.size
         _array(self, "joints", "<f4 <f8", (n, len(JOINTS), 3), allow_empty=n == 0)

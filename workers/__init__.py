@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["KINDS", "worker_class", "upstream_of"]
+__all__ = ["KINDS", "worker_class", "upstream_of", "producers_of"]
 
 KINDS = {
     "grabber": "workers.grabber:Grabber",
@@ -69,3 +69,9 @@ def upstream_of(layout, spec) -> list[str]:
             names.append(other.name)
             break
     return names
+
+
+def producers_of(layout, stage: str) -> list[str]:
+    """Names of the workers of ``layout`` that publish ``stage`` (e.g. the pose workers
+    sharing a frame's tracks)."""
+    return [w.name for w in layout.workers if stage in worker_class(w.kind).PRODUCES]

@@ -16,6 +16,8 @@ from pathlib import Path
 from app.errors import InputError
 from app.export import FORMATS
 from app.messages import Poses
+from app.pose_shares import SharedPoses
+from workers import producers_of
 from workers.base import Worker
 
 FLUSH_PERIOD_S = 0.5
@@ -37,8 +39,7 @@ class Exporter(Worker):
     def acknowledges(cls, spec, layout) -> bool:
         """Offline, the source waits for the exporter too (like the recorder: exported
         results are never dropped), when the layout has a stage that produces poses."""
-        from workers import worker_class
-        return any("poses" in worker_class(w.kind).PRODUCES for w in layout.workers)
+        return bool(producers_of(layout, "poses"))
 
     def setup(self) -> None:
         from app.export.live import LiveExport
@@ -61,9 +62,14 @@ class Exporter(Worker):
             raise InputError(f"exporter {self.name}: the run has no frame rate")
         resume = getattr(self, "incarnation", 0) > 0
         self.export = LiveExport(folder, formats, fps, self.params["up"], resume=resume)
+        self.shares = SharedPoses(producers_of(self.layout, "poses"))
         self._flushed = time.monotonic()
 
     def handle(self, key: str, msg: Poses) -> None:
+        for joined in self.shares.add(msg):   # several pose workers: one record a frame
+            self._add(joined)
+
+    def _add(self, msg: Poses) -> None:
         from app.export.poses import pose_record
         self.export.add(pose_record(msg.frame, msg.t, msg.tracks, msg.joints, msg.active))
         self.ledger.emitted(msg.frame, msg.stamp)
@@ -77,6 +83,8 @@ class Exporter(Worker):
         if not hasattr(self, "export"):
             return
         if getattr(self, "input_ended", True):   # the true end of the run: complete the files
+            for joined in self.shares.flush():
+                self._add(joined)
             paths = self.export.finish()
             self.log.info("exported %d file(s) to %s", len(paths), self.export.folder)
         else:                                    # stopped early: a restart carries on

@@ -19,7 +19,9 @@ heading: 0, ik: straight`` is the thesis's likelihood with the earlier proposals
 ``voxels``: ``consensus`` (default) poses every person on the voxels every camera of the
 frame calls foreground (``Voxels.misses == 0``: the ``k = 0`` subset of the pipeline's
 ``k = 1`` hull, 1.4-2x the body instead of 5-7x, :mod:`app.reconstruction.consensus`),
-their surface recomputed as the subset's 6-neighbour boundary (the reconstruction's
+their surface recomputed from the subset (``surface``: ``outer``, the occupied voxels next
+to empty space reachable from outside, or ``boundary``, every voxel with an empty
+6-neighbour; :mod:`app.pose.observation`) (the reconstruction's
 visibility flags are the surface of the whole hull); ``all`` the whole hull with its
 flags (the thesis: one hull for everything). The tracks still come from the whole hull
 (the tracker and its person classifier need it). Voxels without ``misses`` (an older
@@ -59,11 +61,13 @@ class Pose(Worker):
         "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
+        "surface": "outer",         # V^S of the consensus subset: outer (no enclosed cavities) or boundary (earlier)
         "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull
         "seed": 0,
     }
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
-               "ik": ("table", "straight"), "voxels": ("consensus", "all")}
+               "ik": ("table", "straight"), "voxels": ("consensus", "all"),
+               "surface": ("outer", "boundary")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0)}
@@ -77,7 +81,7 @@ class Pose(Worker):
                                          importance_fraction=float(p["importance_fraction"]),
                                          coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
                                          floor=float(p["floor"]), heading=float(p["heading"]), ik=str(p["ik"]),
-                                         reach=float(p["reach"]), seed=int(p["seed"]))
+                                         reach=float(p["reach"]), surface=str(p["surface"]), seed=int(p["seed"]))
             self.settings.validate()
         except (TypeError, ValueError) as exc:
             raise InputError(f"pose: {exc}") from None
@@ -162,7 +166,7 @@ class Pose(Worker):
         joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)
         active = np.array([result[t][1] for t in order], dtype=bool).reshape(-1, 15)
         same = {"epoch": vox.epoch} if hasattr(vox, "epoch") else {}
-        self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t,
+        self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t, worker=self.name,
                                               tracks=np.array(order, dtype=np.int64), joints=joints, active=active))
 
     def extra_figures(self) -> dict:

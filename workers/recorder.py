@@ -24,9 +24,10 @@ from pathlib import Path
 from app.errors import InputError
 from app.files import partial_path
 from app.messages import JOINTS, Poses, Tracks, Voxels
+from app.pose_shares import SharedPoses
 from app.results import VoxelWriter
 from app.stats import FrameSet
-from workers import worker_class
+from workers import producers_of, worker_class
 from workers.base import Worker
 
 
@@ -115,6 +116,7 @@ class Recorder(Worker):
         produced = {s for w in self.layout.workers for s in worker_class(w.kind).PRODUCES}
         self.tracks = JsonLinesWriter(self.out / "tracks.jsonl") if "tracks" in produced else None
         self.poses = JsonLinesWriter(self.out / "poses.jsonl") if "poses" in produced else None
+        self.shares = SharedPoses(producers_of(self.layout, "poses"))   # several pose workers: one line a frame
         self.voxels = VoxelWriter(self.out / "voxels.bin") if self.params["voxels"] and "voxels" in produced else None
         self.duplicates = 0
         resumed = [f.path.name for f in self._files() if f.frames]
@@ -126,6 +128,13 @@ class Recorder(Worker):
                             getattr(self, "voxels", None)) if f is not None]
 
     def handle(self, key: str, msg) -> None:
+        if isinstance(msg, Poses):
+            for joined in self.shares.add(msg):
+                self._record(joined)
+        else:
+            self._record(msg)
+
+    def _record(self, msg) -> None:
         try:
             written = self._write(msg)
         except OSError as exc:
@@ -156,10 +165,19 @@ class Recorder(Worker):
         return None
 
     def extra_figures(self) -> dict:
+        shares = getattr(self, "shares", None)
         return {"duplicates_skipped": getattr(self, "duplicates", 0),
+                "pose_frames_partial": shares.partial if shares else 0,
                 "files": {f.path.name: len(f.frames) for f in self._files()}}
 
     def close(self) -> None:
+        if getattr(self, "shares", None) is not None and self.poses is not None:
+            for joined in self.shares.flush():   # what the last frames' pose workers sent
+                try:
+                    self._record(joined)
+                except InputError as exc:
+                    self.log.error("%s", exc)
+                    break
         for f in self._files():
             try:
                 f.close(final=self.input_ended)
