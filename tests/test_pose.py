@@ -201,3 +201,29 @@ def test_point_metrics_and_epsilon_opt():
     y[DOF["r_elbow"]] = math.pi / 2
     a = joint_angles(BodyModel(1.8).joints(y))
     assert math.isclose(a[1], math.pi / 2, abs_tol=1e-9) and math.isclose(joint_angles(X)[1], math.pi, abs_tol=1e-9)
+
+
+def test_observation_surface_leaves_cavities_out():
+    """A solid block with an enclosed hole (a mask hole inside a k = 0 hull): the
+    ``outer`` surface is the block's outside only; ``boundary`` (the earlier one) also
+    flags the cavity's walls; the proximity map is 0 inside the hole with ``outer``."""
+    from app.pose.observation import observe
+
+    s = 0.02
+    g = np.stack(np.meshgrid(*(np.arange(10),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    hole = np.all((g >= 4) & (g <= 5), axis=1)   # a 2x2x2 cavity in the middle
+    centres = (g[~hole] + 0.5) * s + np.array([1.0, 1.0, 0.5])
+    lo, hi = (0.0, 0.0, 0.0), (3.0, 3.0, 2.0)
+    outer = observe(centres, s, lo, hi, mode="outer")
+    boundary = observe(centres, s, lo, hi, mode="boundary")
+    shell = np.any((g[~hole] == 0) | (g[~hole] == 9), axis=1)
+    walls = np.any(np.all(np.abs(g[~hole][:, None, :] - g[hole][None, :, :]).sum(axis=2)[..., None] == 1, axis=2),
+                   axis=1)
+    assert outer.surface.sum() == shell.sum() == 10 ** 3 - 8 ** 3
+    assert np.array_equal(outer.surface, shell)
+    assert np.array_equal(boundary.surface, shell | walls) and walls.sum() == 24
+    c = np.floor((np.array([1.0, 1.0, 0.5]) + 5 * s - outer.origin) / s).astype(int)
+    assert outer.prox[tuple(c)] == 0 and boundary.prox[tuple(c)] > 0.5
+    # a hull's own flags are kept as they come
+    flags = np.zeros(len(centres), bool)
+    assert not observe(centres, s, lo, hi, surface=flags).surface.any()

@@ -57,6 +57,7 @@ class PoseSettings:
     ik: str = "table"               # IAPF arm proposals: look-up inverse kinematics (table) or straight arms
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
+    surface: str = "outer"          # V^S of voxels without flags: outer (no cavities) or boundary (app.pose.observation)
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
     seed: int = 0
@@ -72,6 +73,8 @@ class PoseSettings:
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0):
             raise ValueError("coverage, floor and heading must be >= 0 (0 switches them off)")
+        if self.surface not in ("outer", "boundary"):
+            raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
 
@@ -146,7 +149,7 @@ class PersonPose:
                 keep = self.filter
                 self._make(h)
                 self.filter.particles = keep.particles
-        obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface)
+        obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
         self.scorer.set_observation(obs)
         self.scorer.heading = None
         if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:

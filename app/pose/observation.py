@@ -14,7 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["Observation", "observe", "surface_flags"]
+__all__ = ["Observation", "observe", "surface_flags", "outer_surface_flags", "SURFACES"]
+
+#: how the surface ``V^S`` is made when the voxels come without flags: ``outer`` the
+#: occupied voxels 6-adjacent to empty space reachable from outside (cavities, the holes
+#: a mask leaves inside a k = 0 hull, are not surface); ``boundary`` every voxel with an
+#: empty 6-neighbour (cavity borders included, the earlier behaviour)
+SURFACES = ("outer", "boundary")
 
 
 @njit(cache=True, nogil=True)
@@ -46,6 +52,59 @@ def _surface(idx, occ):
                 or occ[i, j, k - 1] == 0 or occ[i, j, k + 1] == 0):
             out[n] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def _outer_surface(idx, occ):
+    """Occupied voxels with a 6-neighbour that is outside the box or empty and connected
+    (6-neighbours, through empty cells) to the box's border: a flood fill of the empty
+    cells from the border, so cavities enclosed by voxels do not count."""
+    X, Y, Z = occ.shape
+    ext = np.zeros((X, Y, Z), dtype=np.uint8)
+    stack = np.empty((X * Y * Z, 3), dtype=np.int64)
+    top = 0
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1) and occ[i, j, k] == 0:
+                    ext[i, j, k] = 1
+                    stack[top, 0], stack[top, 1], stack[top, 2] = i, j, k
+                    top += 1
+    while top > 0:
+        top -= 1
+        i, j, k = stack[top, 0], stack[top, 1], stack[top, 2]
+        for d in range(6):
+            a, b, c = i, j, k
+            if d == 0:
+                a -= 1
+            elif d == 1:
+                a += 1
+            elif d == 2:
+                b -= 1
+            elif d == 3:
+                b += 1
+            elif d == 4:
+                c -= 1
+            else:
+                c += 1
+            if 0 <= a < X and 0 <= b < Y and 0 <= c < Z and occ[a, b, c] == 0 and ext[a, b, c] == 0:
+                ext[a, b, c] = 1
+                stack[top, 0], stack[top, 1], stack[top, 2] = a, b, c
+                top += 1
+    out = np.zeros(idx.shape[0], dtype=np.bool_)
+    for n in range(idx.shape[0]):
+        i, j, k = idx[n, 0], idx[n, 1], idx[n, 2]
+        if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1 or ext[i - 1, j, k] == 1
+                or ext[i + 1, j, k] == 1 or ext[i, j - 1, k] == 1 or ext[i, j + 1, k] == 1
+                or ext[i, j, k - 1] == 1 or ext[i, j, k + 1] == 1):
+            out[n] = True
+    return out
+
+
+def outer_surface_flags(idx_local: np.ndarray, occ: np.ndarray) -> np.ndarray:
+    """Surface voxels of voxels already marked in ``occ`` whose empty 6-neighbour is
+    reachable from the box's border (enclosed cavities are not surface)."""
+    return _outer_surface(idx_local, occ)
 
 
 def surface_flags(idx_local: np.ndarray, occ: np.ndarray) -> np.ndarray:
@@ -89,11 +148,13 @@ def _kernel(radius: int, sigma: float):
 
 
 def observe(centres: np.ndarray, voxel_size: float, room_lo, room_hi, surface=None, margin: float = 0.35,
-            radius: int = 2, sigma: float = 1.0) -> Observation:
+            radius: int = 2, sigma: float = 1.0, mode: str = "outer") -> Observation:
     """The observation of one person from the world centres ``(N, 3)`` of their voxels.
 
     ``surface`` (N,) bool is the reconstruction's surface flag ``V^S`` (computed here
-    from 6-neighbours when None or empty). ``radius`` and ``sigma`` (in voxels) shape the
+    here when None or empty: ``mode`` ``outer`` or ``boundary``, see :data:`SURFACES`;
+    the thesis's ``V^S`` is the voxels some camera sees, which ``outer`` approximates
+    better on a hull with holes). ``radius`` and ``sigma`` (in voxels) shape the
     Gaussian of the proximity map.
     """
     centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
@@ -111,7 +172,7 @@ def observe(centres: np.ndarray, voxel_size: float, room_lo, room_hi, surface=No
     idx = np.floor((centres - origin) / s).astype(np.int64)
     if surface is None or len(surface) != len(centres):
         occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
-        surface = _surface(idx, occ)
+        surface = _outer_surface(idx, occ) if mode == "outer" else _surface(idx, occ)
     offs, kern = _kernel(int(radius), float(sigma))
     _fill(idx, np.asarray(surface, dtype=np.bool_), occ, prox, kern, offs)
     return Observation(origin=origin, voxel_size=s, occ=occ, prox=prox, centres=centres,
