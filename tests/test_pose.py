@@ -227,3 +227,21 @@ def test_observation_surface_leaves_cavities_out():
     # a hull's own flags are kept as they come
     flags = np.zeros(len(centres), bool)
     assert not observe(centres, s, lo, hi, surface=flags).surface.any()
+
+
+def test_stature_top_ignores_a_hand_raised_above_the_head():
+    """The blob's top for the stature: a 1.75 m column (trunk and head) with a hand held
+    0.3 m to the side at 1.85 m; ``axis`` finds the head's top, the earlier estimate (the
+    highest voxel) the hand."""
+    from app.pose.estimator import blob_top
+
+    s = 0.02
+    g = np.stack(np.meshgrid(np.arange(-10, 11), np.arange(-6, 7), np.arange(0, 88), indexing="ij"), axis=-1)
+    body = (g.reshape(-1, 3) + 0.5) * s
+    body = body[(body[:, 2] < 1.5) | (np.hypot(body[:, 0], body[:, 1]) < 0.09)]   # a head above the trunk
+    hand = np.array([[0.3 + dx * s, dy * s, 1.7 + dz * s] for dx in range(3) for dy in range(3) for dz in range(8)])
+    centres = np.vstack([body, hand]) + np.array([2.0, 1.5, 0.0])
+    assert abs(blob_top(centres) - body[:, 2].max()) < 1e-9
+    assert abs(blob_top(centres, axis=False) - hand[:, 2].max()) < 1e-9
+    assert hand[:, 2].max() > body[:, 2].max() + 0.08
+    assert abs(blob_top(body) - body[:, 2].max()) < 1e-9   # no hand: the same top both ways

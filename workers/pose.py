@@ -62,12 +62,13 @@ class Pose(Worker):
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
         "surface": "outer",         # V^S of the consensus subset: outer (no enclosed cavities) or boundary (earlier)
+        "stature": "axis",          # the blob's top for the stature: near the body axis, or top (anywhere; earlier)
         "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull
         "seed": 0,
     }
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
                "ik": ("table", "straight"), "voxels": ("consensus", "all"),
-               "surface": ("outer", "boundary")}
+               "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0)}
@@ -81,7 +82,8 @@ class Pose(Worker):
                                          importance_fraction=float(p["importance_fraction"]),
                                          coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
                                          floor=float(p["floor"]), heading=float(p["heading"]), ik=str(p["ik"]),
-                                         reach=float(p["reach"]), surface=str(p["surface"]), seed=int(p["seed"]))
+                                         reach=float(p["reach"]), surface=str(p["surface"]), stature=str(p["stature"]),
+                                         seed=int(p["seed"]))
             self.settings.validate()
         except (TypeError, ValueError) as exc:
             raise InputError(f"pose: {exc}") from None

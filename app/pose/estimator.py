@@ -8,7 +8,8 @@ detections of :mod:`app.pose.detections` (all particles drawn from the importanc
 function); later frames draw a fraction of the first layer from it (IAPF). Limb
 lengths follow the stature, estimated from the top of the person's blob over the
 first ``height_frames`` frames (``1.02 H``: the top of the head is a little above the
-stature of the model).
+stature of the model), near the body axis (``stature = "axis"``; ``"top"`` the highest
+voxel, which a raised hand lifts).
 
 The likelihood is the thesis's (Eqs. 6.13-6.25) with three additions for the fat voxels
 of a visual hull, all selectable (``coverage = 0, floor = 0, heading = 0`` is the
@@ -58,6 +59,7 @@ class PoseSettings:
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
     surface: str = "outer"          # V^S of voxels without flags: outer (no cavities) or boundary (app.pose.observation)
+    stature: str = "axis"           # the blob's top for the stature: near the body axis (axis) or anywhere (top)
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
     seed: int = 0
@@ -73,6 +75,8 @@ class PoseSettings:
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0):
             raise ValueError("coverage, floor and heading must be >= 0 (0 switches them off)")
+        if self.stature not in ("axis", "top"):
+            raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
             raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
@@ -87,6 +91,22 @@ def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float) -> n
     owner = np.argmin(d, axis=1)
     owner[d[np.arange(len(centres)), owner] > reach] = -1
     return owner
+
+
+def blob_top(centres: np.ndarray, axis: bool = True, band: float = 0.75, radius: float = 0.15) -> float:
+    """The top of a person's voxels for the stature: with ``axis`` the highest voxel within
+    ``radius`` (m, horizontally) of the body axis, the median of the voxels above ``band``
+    times the blob's top, so that a hand raised above the head is not taken for the top of
+    the head (on gesture1 the raised hand put the top 10 cm above the head, 1.81 m
+    instead of 1.73 m of stature, when the track started with the arm up); without
+    ``axis`` the highest voxel (the earlier estimate)."""
+    top = float(centres[:, 2].max())
+    if not axis:
+        return top
+    upper = centres[centres[:, 2] > band * top]
+    ax = np.median(upper[:, :2], axis=0)
+    near = centres[np.hypot(centres[:, 0] - ax[0], centres[:, 1] - ax[1]) < radius]
+    return float(near[:, 2].max()) if len(near) else top
 
 
 _FLESH_CACHE: dict = {}
@@ -138,7 +158,7 @@ class PersonPose:
             # smoothed for the heading prior (a tracker's centroid jitters by a centimetre a frame)
             self.velocity = velocity if self.velocity is None else 0.7 * self.velocity + 0.3 * velocity
         if len(centres) >= 30:
-            self.tops.append(float(centres[:, 2].max()))
+            self.tops.append(blob_top(centres, s.stature == "axis"))
         if self.filter is None:
             if len(self.tops) < 1:
                 return None
