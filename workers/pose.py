@@ -57,6 +57,7 @@ class Pose(Worker):
         "coverage": 0.003,          # sigma^2 of the coverage term for fat hulls (app.pose.coverage); 0 = thesis
         "coverage_partial": True,   # coverage also on SHBM-APF's partial models
         "floor": 0.02,              # m: floor prior on the lower ankle; 0 = none (thesis)
+        "feet": 0.05,               # m: floor prior on the higher ankle too while the track stands; 0 = lower only
         "heading": 0.6,             # rad: yaw prior along the track's walking direction; 0 = none (thesis)
         "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
@@ -71,7 +72,7 @@ class Pose(Worker):
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
-              "heading": (0.0, 10.0)}
+              "heading": (0.0, 10.0), "feet": (0.0, 10.0)}
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -81,7 +82,8 @@ class Pose(Worker):
                                          particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
                                          importance_fraction=float(p["importance_fraction"]),
                                          coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
-                                         floor=float(p["floor"]), heading=float(p["heading"]), ik=str(p["ik"]),
+                                         floor=float(p["floor"]), heading=float(p["heading"]), feet=float(p["feet"]),
+                                         ik=str(p["ik"]),
                                          reach=float(p["reach"]), surface=str(p["surface"]), stature=str(p["stature"]),
                                          seed=int(p["seed"]))
             self.settings.validate()

@@ -56,14 +56,19 @@ __all__ = ["CoverageScorer", "coverage", "floor_penalty"]
 _ANKLES = [JOINTS.index("l_ankle"), JOINTS.index("r_ankle")]
 
 
-def floor_penalty(states: np.ndarray, height: float, sigma: float) -> np.ndarray:
-    """``0.5 ((z_low - 0.039 H)_+ / sigma)^2`` per state, ``z_low`` the lower ankle's height."""
+def floor_penalty(states: np.ndarray, height: float, sigma: float, both: float = 0.0) -> np.ndarray:
+    """``0.5 ((z_low - 0.039 H)_+ / sigma)^2`` per state, ``z_low`` the lower ankle's height;
+    ``both > 0`` adds ``0.5 ((z_high - 0.039 H)_+ / both)^2`` for the higher ankle (a
+    person standing still keeps both feet down)."""
     J = np.empty((len(states), len(JOINTS), 3))
     fk_joints_batch(np.ascontiguousarray(states, dtype=np.float64), float(height), SEG_PARENT, SEG_OFFSET,
                     DOF_SEGMENT, DOF_AXIS, JOINT_SEG, JOINT_LOCAL, J)
-    low = J[:, _ANKLES, 2].min(axis=1)
-    above = np.maximum(low - 0.039 * height, 0.0)
-    return 0.5 * (above / sigma) ** 2
+    z = J[:, _ANKLES, 2]
+    rest = 0.039 * height
+    out = 0.5 * (np.maximum(z.min(axis=1) - rest, 0.0) / sigma) ** 2
+    if both > 0:
+        out = out + 0.5 * (np.maximum(z.max(axis=1) - rest, 0.0) / both) ** 2
+    return out
 
 
 def coverage(counts: np.ndarray, active: np.ndarray, data_count: int, delta: float) -> np.ndarray:
@@ -86,6 +91,7 @@ class CoverageScorer(Scorer):
         self.partial = bool(partial)   # also score partial models (SHBM-APF's H1, H2)
         self.expected = np.ones(len(PARTS), dtype=bool)   # the parts tracked (DDM-APF may switch some off)
         self.heading = None        # (yaw along the track's velocity, deviation rad) or None
+        self.both_feet = 0.0       # m: deviation of the higher ankle's floor prior while standing; 0 = off
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
         act = np.ones(len(PARTS), dtype=bool) if active is None else np.asarray(active, dtype=bool)
@@ -96,7 +102,7 @@ class CoverageScorer(Scorer):
             miss = 1.0 - coverage(counts, act, self.obs.count, delta)
             lw = lw - 0.5 * miss ** 2 / self.sigma2
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
-            lw = lw - floor_penalty(states, self.flesh.height, self.floor)
+            lw = lw - floor_penalty(states, self.flesh.height, self.floor, self.both_feet)
         if self.heading is not None:
             yaw, sigma = self.heading
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))

@@ -59,6 +59,7 @@ class PoseSettings:
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
     surface: str = "outer"          # V^S of voxels without flags: outer (no cavities) or boundary (app.pose.observation)
+    feet: float = 0.05              # m: while the track stands still, the higher ankle's floor prior too; 0 = off
     stature: str = "axis"           # the blob's top for the stature: near the body axis (axis) or anywhere (top)
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
@@ -73,8 +74,8 @@ class PoseSettings:
             raise ValueError(f"likelihood {self.likelihood!r} must be partitioned or global")
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
-        if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0):
-            raise ValueError("coverage, floor and heading must be >= 0 (0 switches them off)")
+        if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.feet >= 0):
+            raise ValueError("coverage, floor, feet and heading must be >= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
@@ -172,6 +173,10 @@ class PersonPose:
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
         self.scorer.set_observation(obs)
         self.scorer.heading = None
+        # standing still (smoothed track speed < 0.3 m/s): both feet down (the k = 0 hull
+        # often lacks a foot a camera sees behind furniture; gesture1's right ankle)
+        standing = self.velocity is not None and np.hypot(*self.velocity[:2]) < 0.3
+        self.scorer.both_feet = s.feet if (standing and s.floor > 0) else 0.0
         if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:
             self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
         det = detect(centres, self.height, velocity)
