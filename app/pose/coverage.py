@@ -33,6 +33,9 @@ into a cone at the floor (k = 1); without the prior the legs are pulled up into 
 remaining data and the body with them (measured: pelvis 25-35 mm too high on
 gesture1's k = 0 hull). Standing, walking and sitting keep a foot down; a jump does
 not, and ``floor = 0`` switches the prior off (the thesis has none).
+While the track stands still the estimator also sets ``both_feet`` (m): the higher
+ankle gets the same one-sided prior, of that deviation (a person standing keeps both
+feet down; on gesture1 the k = 0 hull has no right foot and the right leg drifted).
 
 A third, the *heading* prior, takes the heading from the track (the issue's "tracks
 give their heading"): while the person walks (the track's smoothed speed above 0.3
