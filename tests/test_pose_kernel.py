@@ -188,3 +188,49 @@ def test_scores_and_partitioned_likelihood_match_their_formulas():
     for active in (np.ones(len(PARTS), bool), rng.random(len(PARTS)) < 0.5):
         want = -0.5 * np.sum(scores[:, active, :] ** 2 / part_variances()[active][None], axis=(1, 2))
         np.testing.assert_allclose(log_likelihood(scores, flesh, active), want, rtol=1e-13, atol=0)
+
+
+def test_floor_penalty_with_leg_only_kinematics_matches_the_full_joints():
+    """The floor prior's heights come from the legs' forward kinematics only
+    (:func:`app.pose.model.fk_joint_z_batch`): bit-identical to all 15 joints."""
+    from app.messages import JOINTS
+    from app.pose.coverage import floor_penalty
+    from app.pose.model import JOINT_LOCAL, JOINT_SEG, fk_joints_batch
+    rng = np.random.default_rng(3)
+    P = 200
+    lo, hi = np.maximum(LIMITS_LO, -np.pi), np.minimum(LIMITS_HI, np.pi)
+    states = lo + rng.random((P, N_DOF)) * (hi - lo)
+    states[:, :3] = rng.normal([2.0, 2.0, 0.9], 0.3, (P, 3))
+    J = np.empty((P, len(JOINTS), 3))
+    fk_joints_batch(states, H, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, JOINT_SEG, JOINT_LOCAL, J)
+    z = J[:, [JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], 2]
+    rest = 0.039 * H
+    ref = 0.5 * (np.maximum(z.min(axis=1) - rest, 0.0) / 0.05) ** 2
+    assert np.array_equal(floor_penalty(states, H, 0.05), ref)
+    ref = ref + 0.5 * (np.maximum(z.max(axis=1) - rest, 0.0) / 0.03) ** 2
+    assert np.array_equal(floor_penalty(states, H, 0.05, both=0.03), ref)
+    assert np.count_nonzero(ref) > P // 2
+
+
+def test_joint_subsets_and_torso_frames_match_all_joints():
+    """:func:`app.pose.model.joints_subset` (forward kinematics of the needed segments
+    only, used by the arms' inverse kinematics) gives BodyModel.joints's numbers."""
+    from app.messages import JOINTS
+    from app.pose.detections import _torso_frames
+    from app.pose.model import joints_subset
+    rng = np.random.default_rng(5)
+    lo, hi = np.maximum(LIMITS_LO, -np.pi), np.minimum(LIMITS_HI, np.pi)
+    states = lo + rng.random((100, N_DOF)) * (hi - lo)
+    J = BodyModel(H).joints(states)
+    for names in (JOINTS, ["l_ankle", "r_ankle"], ["l_wrist"], ["neck", "pelvis", "l_shoulder"]):
+        idx = np.array([JOINTS.index(n) for n in names], dtype=np.int64)
+        assert np.array_equal(joints_subset(states, H, idx), J[:, idx])
+    shoulders, frames = _torso_frames(states, H)
+    ls, rs = J[:, JOINTS.index("l_shoulder")], J[:, JOINTS.index("r_shoulder")]
+    up = J[:, JOINTS.index("neck")] - J[:, JOINTS.index("pelvis")]
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    left = ls - rs
+    left -= np.sum(left * up, axis=1, keepdims=True) * up
+    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
+    assert np.array_equal(shoulders["l"], ls) and np.array_equal(shoulders["r"], rs)
+    assert np.array_equal(frames, np.stack([np.cross(left, up), left, up], axis=2))

@@ -51,22 +51,19 @@ import numpy as np
 from app.messages import JOINTS
 from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
-from app.pose.model import (DOF_AXIS, DOF_SEGMENT, JOINT_LOCAL, JOINT_SEG, SEG_OFFSET, SEG_PARENT,
-                            fk_joints_batch)
+from app.pose.model import joints_subset, segments_needed
 
 __all__ = ["CoverageScorer", "coverage", "floor_penalty"]
 
-_ANKLES = [JOINTS.index("l_ankle"), JOINTS.index("r_ankle")]
+_ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.int64)
+_ANKLE_NEED = segments_needed(_ANKLES)   # forward kinematics of the legs only
 
 
 def floor_penalty(states: np.ndarray, height: float, sigma: float, both: float = 0.0) -> np.ndarray:
     """``0.5 ((z_low - 0.039 H)_+ / sigma)^2`` per state, ``z_low`` the lower ankle's height;
     ``both > 0`` adds ``0.5 ((z_high - 0.039 H)_+ / both)^2`` for the higher ankle (a
     person standing still keeps both feet down)."""
-    J = np.empty((len(states), len(JOINTS), 3))
-    fk_joints_batch(np.ascontiguousarray(states, dtype=np.float64), float(height), SEG_PARENT, SEG_OFFSET,
-                    DOF_SEGMENT, DOF_AXIS, JOINT_SEG, JOINT_LOCAL, J)
-    z = J[:, _ANKLES, 2]
+    z = joints_subset(states, height, _ANKLES, _ANKLE_NEED)[:, :, 2]
     rest = 0.039 * height
     out = 0.5 * (np.maximum(z.min(axis=1) - rest, 0.0) / sigma) ** 2
     if both > 0:

@@ -38,7 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.messages import JOINTS
-from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, BodyModel, neutral_state, standing_root_height
+from app.pose.model import (DOF, LIMITS_HI, LIMITS_LO, BodyModel, joints_subset, neutral_state, segments_needed,
+                            standing_root_height)
 
 __all__ = ["Detections", "detect", "Importance"]
 
@@ -142,12 +143,16 @@ def _ik_keys(rel: np.ndarray) -> np.ndarray:
     return (q[..., 0] * 128 + q[..., 1]) * 128 + q[..., 2]
 
 
+_TORSO_JOINTS = np.array([JOINTS.index(n) for n in ("l_shoulder", "r_shoulder", "neck", "pelvis")], dtype=np.int64)
+_TORSO_NEED = segments_needed(_TORSO_JOINTS)
+
+
 def _torso_frames(states: np.ndarray, height: float):
     """Shoulders ``{side: (n, 3)}`` and torso frames ``(n, 3, 3)`` (columns x forward,
     y left, z up) of states, from their joints."""
-    j = BodyModel(height).joints(states)
-    ls, rs = j[:, JOINTS.index("l_shoulder")], j[:, JOINTS.index("r_shoulder")]
-    up = j[:, JOINTS.index("neck")] - j[:, JOINTS.index("pelvis")]
+    j = joints_subset(states, height, _TORSO_JOINTS, _TORSO_NEED)    # the trunk's segments only
+    ls, rs = j[:, 0], j[:, 1]
+    up = j[:, 2] - j[:, 3]
     up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
     left = ls - rs
     left -= np.sum(left * up, axis=1, keepdims=True) * up

@@ -231,6 +231,49 @@ def fk_joints_batch(states, height, seg_parent, seg_offset, dof_segment, dof_axi
                                                    + R[s, i, 2] * joint_local[j, 2])
 
 
+@njit(cache=True, nogil=True)
+def fk_joints_subset_batch(states, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local,
+                           joints, need, out):
+    """Some ``joints`` (indices into the 15) of every state into ``out (P, len(joints), 3)``:
+    :func:`fk_joints_batch`'s arithmetic (bit-identical), over the ``need``-ed segments
+    only (:func:`segments_needed`: the floor prior's ankles need 5 of 11, a torso frame 2)."""
+    S = seg_parent.shape[0]
+    R = np.empty((S, 3, 3))
+    O = np.empty((S, 3))
+    for k in range(states.shape[0]):
+        fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O, need)
+        for t in range(joints.shape[0]):
+            j = joints[t]
+            s = joint_seg[j]
+            for i in range(3):
+                out[k, t, i] = O[s, i] + height * (R[s, i, 0] * joint_local[j, 0] + R[s, i, 1] * joint_local[j, 1]
+                                                   + R[s, i, 2] * joint_local[j, 2])
+
+
+def segments_needed(joints) -> np.ndarray:
+    """``need (S,)`` for :func:`fk_segments`: the segments of ``joints`` and their ancestors."""
+    need = np.zeros(len(SEG_PARENT), dtype=np.bool_)
+    for j in joints:
+        s = int(JOINT_SEG[j])
+        while s >= 0:
+            need[s] = True
+            s = int(SEG_PARENT[s])
+    return need
+
+
+def joints_subset(states: np.ndarray, height: float, joints: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+    """``(P, len(joints), 3)``: the ``joints`` (int64 indices into the 15) of states
+    ``(P, 27)``, the same numbers as :meth:`BodyModel.joints`, from the segments they
+    need only (``need`` from :func:`segments_needed`, computed when not given)."""
+    joints = np.asarray(joints, dtype=np.int64)
+    need = segments_needed(joints) if need is None else need
+    states = np.ascontiguousarray(states, dtype=np.float64)
+    out = np.empty((len(states), len(joints), 3))
+    fk_joints_subset_batch(states, float(height), SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, JOINT_SEG,
+                           JOINT_LOCAL, joints, need, out)
+    return out
+
+
 def neutral_state(height: float = 1.75, position=(0.0, 0.0, None), yaw: float = 0.0) -> np.ndarray:
     """Standing at rest (the neutral pose of §6.5.1.1), arms slightly away from the body;
     the root at standing height unless ``position[2]`` is given."""
