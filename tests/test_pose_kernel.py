@@ -234,3 +234,25 @@ def test_joint_subsets_and_torso_frames_match_all_joints():
     left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
     assert np.array_equal(shoulders["l"], ls) and np.array_equal(shoulders["r"], rs)
     assert np.array_equal(frames, np.stack([np.cross(left, up), left, up], axis=2))
+
+
+def test_outer_surface_equals_a_fill_of_the_whole_box():
+    """The outer surface (cavities are not surface) fills only the voxels' bounding box:
+    the same flags as filling the holes of the whole box (scipy) on random blobs."""
+    from scipy.ndimage import binary_fill_holes
+
+    from app.pose.observation import outer_surface_flags
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        shape = tuple(int(v) for v in rng.integers(3, 24, 3))
+        occ = (rng.random(shape) < rng.uniform(0.2, 0.95)).astype(np.uint8)
+        lo = rng.integers(0, shape)
+        keep = np.zeros(shape, bool)
+        keep[lo[0]:lo[0] + rng.integers(1, 12), lo[1]:lo[1] + rng.integers(1, 12), lo[2]:lo[2] + rng.integers(1, 12)] = True
+        occ[~keep] = 0
+        idx = np.argwhere(occ).astype(np.int64)
+        outside = np.pad(~binary_fill_holes(occ.astype(bool)), 1, constant_values=True)
+        i, j, k = (idx + 1).T
+        want = (outside[i - 1, j, k] | outside[i + 1, j, k] | outside[i, j - 1, k] | outside[i, j + 1, k]
+                | outside[i, j, k - 1] | outside[i, j, k + 1])
+        assert np.array_equal(outer_surface_flags(idx, occ), want)

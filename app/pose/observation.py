@@ -58,21 +58,42 @@ def _surface(idx, occ):
 def _outer_surface(idx, occ):
     """Occupied voxels with a 6-neighbour that is outside the box or empty and connected
     (6-neighbours, through empty cells) to the box's border: a flood fill of the empty
-    cells from the border, so cavities enclosed by voxels do not count."""
+    cells from the border, so cavities enclosed by voxels do not count.
+
+    Every cell outside the voxels' bounding box is empty and reaches the border in a
+    straight line, so the fill runs only in that bounding box grown by one cell, seeded
+    from its rim (the same cells come out as with a fill of the whole box, at a fraction
+    of its cost: the person's box has a 0.35 m margin all round)."""
     X, Y, Z = occ.shape
-    ext = np.zeros((X, Y, Z), dtype=np.uint8)
-    stack = np.empty((X * Y * Z, 3), dtype=np.int64)
+    n = idx.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return out
+    lo0, lo1, lo2 = X, Y, Z
+    hi0, hi1, hi2 = -1, -1, -1
+    for m in range(n):
+        lo0, hi0 = min(lo0, idx[m, 0]), max(hi0, idx[m, 0])
+        lo1, hi1 = min(lo1, idx[m, 1]), max(hi1, idx[m, 1])
+        lo2, hi2 = min(lo2, idx[m, 2]), max(hi2, idx[m, 2])
+    a0, b0, c0 = max(lo0 - 1, 0), max(lo1 - 1, 0), max(lo2 - 1, 0)
+    SX, SY, SZ = min(hi0 + 1, X - 1) - a0 + 1, min(hi1 + 1, Y - 1) - b0 + 1, min(hi2 + 1, Z - 1) - c0 + 1
+    ext = np.zeros((SX, SY, SZ), dtype=np.uint8)
+    stack = np.empty(SX * SY * SZ, dtype=np.int32)   # flat sub-box indices
     top = 0
-    for i in range(X):
-        for j in range(Y):
-            for k in range(Z):
-                if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1) and occ[i, j, k] == 0:
+    for i in range(SX):
+        for j in range(SY):
+            for k in range(SZ):
+                if ((i == 0 or j == 0 or k == 0 or i == SX - 1 or j == SY - 1 or k == SZ - 1)
+                        and occ[a0 + i, b0 + j, c0 + k] == 0):
                     ext[i, j, k] = 1
-                    stack[top, 0], stack[top, 1], stack[top, 2] = i, j, k
+                    stack[top] = (i * SY + j) * SZ + k
                     top += 1
     while top > 0:
         top -= 1
-        i, j, k = stack[top, 0], stack[top, 1], stack[top, 2]
+        f = stack[top]
+        k = f % SZ
+        j = (f // SZ) % SY
+        i = f // (SZ * SY)
         for d in range(6):
             a, b, c = i, j, k
             if d == 0:
@@ -87,17 +108,20 @@ def _outer_surface(idx, occ):
                 c -= 1
             else:
                 c += 1
-            if 0 <= a < X and 0 <= b < Y and 0 <= c < Z and occ[a, b, c] == 0 and ext[a, b, c] == 0:
+            if (0 <= a < SX and 0 <= b < SY and 0 <= c < SZ and ext[a, b, c] == 0
+                    and occ[a0 + a, b0 + b, c0 + c] == 0):
                 ext[a, b, c] = 1
-                stack[top, 0], stack[top, 1], stack[top, 2] = a, b, c
+                stack[top] = (a * SY + b) * SZ + c
                 top += 1
-    out = np.zeros(idx.shape[0], dtype=np.bool_)
-    for n in range(idx.shape[0]):
-        i, j, k = idx[n, 0], idx[n, 1], idx[n, 2]
-        if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1 or ext[i - 1, j, k] == 1
-                or ext[i + 1, j, k] == 1 or ext[i, j - 1, k] == 1 or ext[i, j + 1, k] == 1
+    for m in range(n):
+        i, j, k = idx[m, 0], idx[m, 1], idx[m, 2]
+        if i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1:
+            out[m] = True   # on the box's border
+            continue
+        i, j, k = i - a0, j - b0, k - c0   # inside the sub-box with a cell all round
+        if (ext[i - 1, j, k] == 1 or ext[i + 1, j, k] == 1 or ext[i, j - 1, k] == 1 or ext[i, j + 1, k] == 1
                 or ext[i, j, k - 1] == 1 or ext[i, j, k + 1] == 1):
-            out[n] = True
+            out[m] = True
     return out
 
 
