@@ -50,3 +50,24 @@ class ClipSource(Worker):
 
     def stream_info(self):
         return len(self.clip["frames"]), int(self.clip["frames"][0]), 25.0
+
+
+def run_clip(clip_file, tmp_path, recording, pose_workers: list[dict]) -> list[dict]:
+    """Run ``clip_file`` through the pose workers given (``{"name", "params"}``) and the
+    recorder over the bus; the records of ``poses.jsonl``."""
+    import json
+
+    import yaml
+
+    from tests.conftest import smartroom
+    layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
+              "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
+                           "params": {"file": str(clip_file), "rate": 5.0}},
+                          *({"kind": "pose", **w} for w in pose_workers),
+                          {"name": "recorder", "kind": "recorder"}]}
+    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
+    out = tmp_path / "out"
+    r = smartroom("run", "--recording", recording, "--layout", tmp_path / "layout.yaml", "--headless",
+                  "--out", out, timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]

@@ -141,13 +141,9 @@ def _mmta(errors):
 def test_pose_worker_on_the_consensus_beats_the_whole_hull(hull_clip, tiny_recording, tmp_path):
     """The pose worker over the bus, fed the k = 1 hull with misses (default ``voxels:
     consensus``), against the same estimator on the whole hull (``voxels: all``)."""
-    import json
-
-    import yaml
-
     from app.messages import JOINTS
     from app.pose.estimator import PoseEstimator, PoseSettings
-    from tests.conftest import smartroom
+    from tests.pose_source import run_clip
 
     frames, grid = hull_clip
     assert min(len(f["ids"]) for f in frames) == 2 and all(0.2 < (f["misses"] == 0).mean() < 0.8 for f in frames)
@@ -169,17 +165,7 @@ def test_pose_worker_on_the_consensus_beats_the_whole_hull(hull_clip, tiny_recor
              track_offsets=np.cumsum([0] + [len(f["ids"]) for f in frames]),
              ids=np.concatenate([np.array(f["ids"]) + 10 for f in frames]),
              positions=np.concatenate([f["positions"] for f in frames]))
-    layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
-              "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
-                           "params": {"file": str(clip), "rate": 5.0}},
-                          {"name": "pose", "kind": "pose", "params": {"method": "shbm", "density": 1}},
-                          {"name": "recorder", "kind": "recorder"}]}
-    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
-    out = tmp_path / "out"
-    r = smartroom("run", "--recording", tiny_recording, "--layout", tmp_path / "layout.yaml", "--headless",
-                  "--out", out, timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
-    records = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
+    records = run_clip(clip, tmp_path, tiny_recording, [{"name": "pose", "params": {"method": "shbm", "density": 1}}])
     assert len(records) >= len(frames) // 2
     by_frame = {f["frame"]: f for f in frames}
     consensus = []

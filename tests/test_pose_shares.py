@@ -1,15 +1,12 @@
 """Several pose workers sharing a frame's tracks (issue 11: more people than one worker
 carries is a layout matter): the result writers join their poses, one line a frame with
 every person, and lose nothing when one worker is behind."""
-import json
-
 import numpy as np
-import yaml
 
 from app.messages import JOINTS, Poses
 from app.pose.offline import simulated_clip
 from app.pose_shares import SharedPoses
-from tests.conftest import smartroom
+from tests.pose_source import run_clip
 from tests.test_pose_worker import _write_clip
 
 
@@ -52,18 +49,9 @@ def test_two_pose_workers_share_the_tracks_and_the_recorder_writes_everyone(tiny
     assert all(len(fr.ids) >= 2 for fr in clip)
     _write_clip(tmp_path / "clip.npz", clip, cal, 0.03)
     pose = {"method": "shbm", "density": 2.0}
-    layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
-              "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
-                           "params": {"file": str(tmp_path / "clip.npz"), "rate": 5.0}},
-                          {"name": "pose_a", "kind": "pose", "params": {**pose, "share": [0, 2]}},
-                          {"name": "pose_b", "kind": "pose", "params": {**pose, "share": [1, 2]}},
-                          {"name": "recorder", "kind": "recorder"}]}
-    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
-    out = tmp_path / "out"
-    r = smartroom("run", "--recording", tiny_recording, "--layout", tmp_path / "layout.yaml", "--headless",
-                  "--out", out, timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
-    records = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
+    records = run_clip(tmp_path / "clip.npz", tmp_path, tiny_recording,
+                       [{"name": "pose_a", "params": {**pose, "share": [0, 2]}},
+                        {"name": "pose_b", "params": {**pose, "share": [1, 2]}}])
     assert len(records) == len({rec["frame"] for rec in records}) >= len(frames) // 2
     by_frame = {fr.frame: fr for fr in clip}
     errors = []

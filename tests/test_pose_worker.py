@@ -2,14 +2,11 @@
 simulated clip's voxels and true tracks (two people of meeting3), the pose worker
 publishes poses, the recorder writes poses.jsonl; every person is posed every frame,
 each against their own ground truth."""
-import json
-
 import numpy as np
-import yaml
 
 from app.messages import JOINTS
 from app.pose.offline import simulated_clip
-from tests.conftest import smartroom
+from tests.pose_source import run_clip
 
 FRAMES = range(0, 24)
 
@@ -29,17 +26,8 @@ def test_pose_worker_poses_every_tracked_person(tiny_recording, tmp_path):
     clip, cal = simulated_clip("meeting3", FRAMES, 0.03, zenithal=False)
     assert all(len(fr.ids) >= 2 for fr in clip)
     _write_clip(tmp_path / "clip.npz", clip, cal, 0.03)
-    layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
-              "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
-                           "params": {"file": str(tmp_path / "clip.npz"), "rate": 5.0}},
-                          {"name": "pose", "kind": "pose", "params": {"method": "shbm", "density": 1.5}},
-                          {"name": "recorder", "kind": "recorder"}]}
-    (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))
-    out = tmp_path / "out"
-    r = smartroom("run", "--recording", tiny_recording, "--layout", tmp_path / "layout.yaml", "--headless",
-                  "--out", out, timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
-    records = [json.loads(line) for line in (out / "poses.jsonl").read_text().splitlines()]
+    records = run_clip(tmp_path / "clip.npz", tmp_path, tiny_recording,
+                       [{"name": "pose", "params": {"method": "shbm", "density": 1.5}}])
     assert len(records) >= len(FRAMES) // 2         # a stage that falls behind poses the newest frame
     by_frame = {fr.frame: fr for fr in clip}
     errors = []
