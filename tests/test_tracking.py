@@ -196,3 +196,49 @@ def test_a_person_who_briefly_fails_the_person_test_keeps_their_id():
     assert s.mismatches == 0 and s.idf1 >= 0.85, s.summary()
     plain = run(frames, reid_frames=0)
     assert len({int(i) for f in range(5, 80) for i in plain[f][0]}) == 3
+
+
+def hug(back=False, n_in=30, n_hug=20, n_out=30, sep=0.3):
+    """Two people (red over blue, green over grey) walk towards each other along x, stand
+    hugging for ``n_hug`` frames with centres ``sep`` apart (one blob, no lobes) and walk
+    on past each other (``back``: return the way they came)."""
+    a_end, b_end = (1.2, 3.8) if back else (3.8, 1.2)
+    a0, b0 = 2.5 - sep / 2, 2.5 + sep / 2
+    path_a = [1.2 + (a0 - 1.2) * i / (n_in - 1) for i in range(n_in)] + [a0] * n_hug + \
+             [a0 + (a_end - a0) * i / (n_out - 1) for i in range(n_out)]
+    path_b = [3.8 + (b0 - 3.8) * i / (n_in - 1) for i in range(n_in)] + [b0] * n_hug + \
+             [b0 + (b_end - b0) * i / (n_out - 1) for i in range(n_out)]
+    frames = [frame_of(f, [(_cylinder(xa, 2.0, radius=0.3), RED, BLUE), (_cylinder(xb, 2.0, radius=0.3), GREEN, GREY)])
+              for f, (xa, xb) in enumerate(zip(path_a, path_b))]
+    return frames, truth_of({f: {1: (xa, 2.0), 2: (xb, 2.0)} for f, (xa, xb) in enumerate(zip(path_a, path_b))})
+
+
+def _ends(res, truth):
+    """``{track id: truth id of the person nearest its last position}``."""
+    ids, pos = res[max(res)]
+    tids, tpos = truth[max(truth)]
+    return {int(i): int(tids[np.argmin(((tpos[:, :2] - p[:2]) ** 2).sum(axis=1))]) for i, p in zip(ids, pos)}
+
+
+@pytest.mark.parametrize("back", [False, True], ids=["pass-through", "bounce-back"])
+def test_colour_keeps_identities_through_a_hug_raw_swaps(back):
+    """Fig. 4.12: two differently dressed people merge into one blob without lobes for 20
+    frames. SS-colour keeps both identities (frozen references while merged, blocking
+    lifted by colour, no Voronoi re-centring while close, no duplicate deletion of two
+    people dressed differently); SS-raw cannot tell them apart: through the pass-through
+    its tracks stay on the side they came from (swap), and with the thesis's duplicate
+    rule one of the two colour tracks is deleted during the hug."""
+    frames, truth = hug(back=back)
+    from app.tracking.blobs import ComponentAnalysis
+    assert len(ComponentAnalysis(DIMS, [0, 0, 0], VS)(frames[40].indices)[1]) == 1
+    for seed in (0, 1):
+        res = run(frames, "ss_colour", seed=seed)
+        s = score_tracking(truth, res)
+        assert _ends(res, truth) == {1: 1, 2: 2} and s.mismatches == 0 and s.idf1 >= 0.95, (seed, s.summary())
+    if not back:
+        for seed in (0, 1):   # kept alive (no duplicate deletion) to show the swap itself
+            res = run(frames, "ss_raw", seed=seed, duplicate_frames=1000)
+            assert _ends(res, truth) == {1: 2, 2: 1}, seed
+            assert score_tracking(truth, res).mismatches >= 2
+        thesis = run(frames, "ss_colour", duplicate_similarity=0.0)
+        assert any(len(thesis[f][0]) == 1 for f in range(30, 50))   # one of the huggers deleted

@@ -21,6 +21,13 @@ surface; the centroid is their weighted mean (Eq. 4.18). Each frame:
 
 ``colour=False`` is SS-raw (lambda = 1). A target whose samples all die is re-seeded on
 the surface voxels within ``delta`` of its last estimate.
+
+Beyond the thesis, so that colour decides who is who in a merged blob (Fig. 4.12; each
+selectable, off is the thesis): the reference histogram is not adapted (Eq. 4.11) while
+another target is within ``colour_freeze`` (the blob's colours are both people's), and
+the blocking by a differently dressed target (Bhattacharyya < ``duplicate_similarity``)
+is lifted in proportion to the sample's colour score (``colour_unblock``): a track may
+follow its own colours past the other target instead of being held on its side.
 """
 from __future__ import annotations
 
@@ -131,9 +138,18 @@ class SparseTarget:
     def step_all(cls, targets: list["SparseTarget"], scene: SceneFrame) -> None:
         estimates = np.array([t.x for t in targets]) if targets else np.zeros((0, 3))
         for i, t in enumerate(targets):
-            t.step(scene, np.delete(estimates, i, axis=0))
+            distinct = np.array([t.distinct_from(o) for j, o in enumerate(targets) if j != i], dtype=bool)
+            t.step(scene, np.delete(estimates, i, axis=0), distinct)
 
-    def step(self, scene: SceneFrame, others: np.ndarray) -> None:
+    def distinct_from(self, other: "SparseTarget") -> bool:
+        """Whether colour tells this target from ``other``: both have a reference
+        histogram and they are less alike (Bhattacharyya) than ``duplicate_similarity``."""
+        a, b = self.reference, getattr(other, "reference", None)
+        if not self.colour or a is None or b is None or self.p.duplicate_similarity <= 0:
+            return False
+        return bool(np.sqrt(a * b).sum() < self.p.duplicate_similarity)
+
+    def step(self, scene: SceneFrame, others: np.ndarray, distinct: np.ndarray | None = None) -> None:
         p, rng = self.p, self.rng
         if len(self.samples) == 0:
             self._seed(scene)
@@ -164,7 +180,12 @@ class SparseTarget:
         world = scene.origin + (samples + 0.5) * scene.voxel_size
         far = ((world[:, :2] - self.x[:2]) ** 2).sum(axis=1) > (p.alpha * p.sx) ** 2
         w[far] = 0.0                                                          # intra-target removal
-        w *= blocking(world[:, :2], others, p.ss_blocking / p.sx ** 2)        # Eq. 4.12-4.13
+        k = p.ss_blocking / p.sx ** 2
+        lift = distinct if use_colour and p.colour_unblock and distinct is not None else np.zeros(len(others), bool)
+        w *= blocking(world[:, :2], others[~lift], k)                        # Eq. 4.12-4.13
+        for o in others[lift]:   # beyond the thesis: the target's own colours are not blocked by
+            b = blocking(world[:, :2], o[None], k)   # a differently dressed target (colour_unblock)
+            w *= b + (1 - b) * col
         total = w.sum()
         self.efficiency = float(total / n)
         if total <= 1e-9:
@@ -172,7 +193,9 @@ class SparseTarget:
             return
         self.samples, self.weights = samples, w / total
         self.x = self.weights @ world                                         # Eq. 4.18
-        if use_colour:                                                        # Eq. 4.11
+        near_other = len(others) and p.colour_freeze > 0 and \
+            (((others[:, :2] - self.x[:2]) ** 2).sum(axis=1) < p.colour_freeze ** 2).any()
+        if use_colour and not near_other:                                     # Eq. 4.11
             sel = ellipsoid_voxels(scene, self.x, p.sx, others)
             h = histogram(scene.bins[sel[scene.bins[sel] >= 0]])
             if h is not None:

@@ -8,9 +8,12 @@ Each frame (:meth:`MultiTracker.update`):
    share that are at least ``refine_min_z`` high (the upper body: the visual hull's
    lower part is fattened by phantom volume that pulls a centroid away from the body);
    the particle filter's cloud moves with its estimate (``refine_particles``), as
-   Sparse Sampling's fresh samples are drawn around it (``ss_reseed``);
+   Sparse Sampling's fresh samples are drawn around it (``ss_reseed``); a colour
+   target is not re-centred while another is within ``refine_colour`` (the Voronoi
+   share would overrule its colours in a merged blob);
 2. deletion (§4.2.3): a target that falls within ``duplicate_distance`` of an older one
-   for ``duplicate_frames`` frames is a duplicate; a target whose support (the weight of
+   for ``duplicate_frames`` frames is a duplicate (with colour, beyond the thesis, only
+   if also dressed alike: ``duplicate_similarity``); a target whose support (the weight of
    the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
    frames has lost its person (the thesis's low efficiency); a target whose component
    the classifier calls no-person for ``no_person_frames`` frames is lost;
@@ -68,6 +71,9 @@ class TrackerParams:
     ss_step: float = 0.08          # SS propagation: largest offset per axis (m)
     ss_reseed: float = 0.25        # SS: share of samples drawn afresh on the surface (0: the thesis)
     ss_blocking: float = 1.0       # SS blocking k = ss_blocking / s_x^2
+    colour_freeze: float = 0.9     # no histogram adaptation while another target is this close (m, xy; 0: the thesis)
+    colour_unblock: bool = True    # SS: a sample's blocking is lifted by its colour score (False: the thesis)
+    refine_colour: float = 0.45    # colour filters: no re-centring while another target is this close (m; 0: always)
     pf_sigma: tuple = (0.05, 0.05, 0.03)   # PF propagation noise (m)
     z_min: float = 0.3
     z_max: float = 1.4
@@ -78,6 +84,7 @@ class TrackerParams:
     new_min_z: float = 0.6         # no new track whose candidate's centroid is lower (m; -inf: any)
     duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
     duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
+    duplicate_similarity: float = 0.5   # colour filters: ... and dressed alike (Bhattacharyya >= this; 0: the thesis)
     min_support_kg: float = 10.0
     lost_frames: int = 8
     no_person_frames: int = 18
@@ -155,6 +162,10 @@ class MultiTracker:
         o = scene.origin
         acc = np.zeros(3)
         for i, t in enumerate(self.tracks):
+            if self.p.refine_colour > 0 and getattr(t.target, "reference", None) is not None:
+                d2 = ((np.delete(xs, i, axis=0)[:, :2] - xs[i, :2]) ** 2).sum(axis=1)
+                if (d2 < self.p.refine_colour ** 2).any():   # colour, not the Voronoi share, decides
+                    continue
             # only targets whose discs overlap compete for voxels
             close = np.nonzero(((xs[:, :2] - xs[i, :2]) ** 2).sum(axis=1) < (2 * r) ** 2)[0]
             k = columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
@@ -244,7 +255,7 @@ class MultiTracker:
             t.low_support = t.low_support + 1 if support[i] < p.min_support_kg else 0
             t.no_person = 0 if person[i] else t.no_person + 1
             dup = any(((o.target.x[:2] - t.target.x[:2]) ** 2).sum() < p.duplicate_distance ** 2
-                      for o in keep if o.id < t.id)
+                      and self._alike(o.target, t.target) for o in keep if o.id < t.id)
             t.close = t.close + 1 if dup else 0
             # a failing share is the younger track's fault while an older track holds the component
             shared_fail = t.no_person >= p.share_frames and hosts[i] >= 0 and oldest[hosts[i]] != t.id
@@ -259,6 +270,16 @@ class MultiTracker:
                 continue
             keep.append(t)
         self.tracks = keep
+
+    def _alike(self, a, b) -> bool:
+        """Beyond the thesis (``duplicate_similarity``): with colour, two close targets
+        are one person's only when their reference histograms are alike (two people
+        dressed differently standing close are two people); without colour, or with
+        ``duplicate_similarity`` 0 (the thesis), closeness alone decides."""
+        ra, rb = getattr(a, "reference", None), getattr(b, "reference", None)
+        if self.p.duplicate_similarity <= 0 or ra is None or rb is None:
+            return True
+        return bhattacharyya(ra, rb) >= self.p.duplicate_similarity
 
     def _create(self, scene: SceneFrame) -> None:
         p = self.p
