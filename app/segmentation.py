@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["SegmentationParams", "CameraSegmenter", "camera_segmenter", "floor_region", "fill_holes",
-           "estimate_background", "estimate_background_robust", "working_size", "matched_scale", "shrink",
+           "estimate_background", "estimate_background_robust", "recording_background", "working_size", "matched_scale", "shrink",
            "YuvBackground"]
 
 
@@ -302,6 +302,16 @@ def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01)
     out[v[inside], u[inside]] = 1
     out = cv2.morphologyEx(out, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3)))
     return out.view(bool)
+
+
+def recording_background(recording, camera: str, frames: int = 25) -> np.ndarray:
+    """A recording's background image of ``camera``, or (no ``background/`` image) its
+    estimate from ``frames`` frames with the people left out, as the segmentation worker
+    makes it (offline tools that must segment as the pipeline does)."""
+    background = recording.background(camera)
+    if background is None:
+        background = estimate_background_robust(recording.sample(camera, frames))[0]
+    return background
 
 
 def camera_segmenter(params: SegmentationParams, background: np.ndarray | None, calibration=None,

@@ -30,17 +30,15 @@ def segment_frames(recording, frames: int, scale: int = 2, colour_scale: int | N
     ``(calibration, [(masks, images)], segmentation ms per frame (all cameras), frame
     indices)``; colour images at ``colour_scale`` (default: the mask scale)."""
     from app.recording import Recording
-    from app.segmentation import SegmentationParams, camera_segmenter, estimate_background_robust
+    from app.segmentation import SegmentationParams, camera_segmenter, recording_background
 
     rec = Recording(recording)
     colour_scale = scale if colour_scale is None else colour_scale
     params = SegmentationParams(scale=scale)
     segs = {}
     for cam in rec.cameras:
-        bg = rec.background(cam)
-        if bg is None:
-            bg = estimate_background_robust(rec.sample(cam, 25))[0]
-        segs[cam] = camera_segmenter(params, bg, rec.calibration, cam)   # the floor region, as the worker
+        # the floor region, as the worker
+        segs[cam] = camera_segmenter(params, recording_background(rec, cam), rec.calibration, cam)
     out, seg_ms, indices = [], [], []
     for i, images in rec.frames(stop=frames):
         t0 = time.perf_counter()
@@ -320,17 +318,14 @@ def speed_table(recording, frames: int = 60, voxel_size: float = 0.02, warmup: i
     before timing."""
     from app.recording import Recording
     from app.reconstruction import Reconstructor
-    from app.segmentation import (SegmentationParams, YuvBackground, camera_segmenter, estimate_background_robust,
+    from app.segmentation import (SegmentationParams, YuvBackground, camera_segmenter, recording_background,
                                   matched_scale)
 
     rec = Recording(recording)
     calib = rec.calibration
     scale = matched_scale(calib, voxel_size)
     decoded = [images for _, images in rec.frames(stop=frames)]
-    backgrounds = {}
-    for cam in rec.cameras:
-        bg = rec.background(cam)
-        backgrounds[cam] = bg if bg is not None else estimate_background_robust(rec.sample(cam, 25))[0]
+    backgrounds = {cam: recording_background(rec, cam) for cam in rec.cameras}
     sizes = {c.name: (c.width // scale, c.height // scale) for c in calib.cameras}
     rows = []
     for name, seg_kind, options in variants:

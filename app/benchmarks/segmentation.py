@@ -94,15 +94,13 @@ def score_masks(recording, truth: list[dict], scale: int, params: dict | None = 
     recall, precision, worst camera's recall, misses and false foreground by place (in
     % of true person pixels), and the ms of segmentation per frame (all cameras, p50)."""
     from app.recording import Recording
-    from app.segmentation import SegmentationParams, camera_segmenter, estimate_background_robust, shrink
+    from app.segmentation import SegmentationParams, camera_segmenter, recording_background, shrink
 
     rec = Recording(recording)
     sp = SegmentationParams.from_params({**(params or {}), "scale": scale})
     segs, backs = {}, {}
     for cam in rec.cameras:
-        bg = rec.background(cam)
-        if bg is None:
-            bg = estimate_background_robust(rec.sample(cam, 25))[0]
+        bg = recording_background(rec, cam)
         segs[cam] = camera_segmenter(sp, bg, rec.calibration, cam)
         backs[cam] = shrink(bg, scale).astype(np.int16)
     acc: dict = {}
@@ -193,16 +191,13 @@ def hull_rows(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), variants=MA
     from app.evaluation.reconstruction import score_frame, summarise_scores
     from app.recording import Recording
     from app.reconstruction import Reconstructor
-    from app.segmentation import SegmentationParams, camera_segmenter, estimate_background_robust, matched_scale
+    from app.segmentation import SegmentationParams, camera_segmenter, recording_background, matched_scale
     from app.simulation.occupancy import load_bodies, true_occupancy
 
     rec = Recording(recording)
     calib = rec.calibration
     bodies = {r["frame"]: r for r in load_bodies(recording)}
-    backgrounds = {c: rec.background(c) for c in rec.cameras}
-    for c, bg in backgrounds.items():
-        if bg is None:
-            backgrounds[c] = estimate_background_robust(rec.sample(c, 25))[0]
+    backgrounds = {c: recording_background(rec, c) for c in rec.cameras}
     rows = []
     for vs in voxel_sizes:
         scale = matched_scale(calib, vs)

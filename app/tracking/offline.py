@@ -77,7 +77,7 @@ def recording_voxels(recording, voxel_size: float, frames: int | None = None, ca
 def _compute(recording: Path, voxel_size: float, frames, progress):
     from app.reconstruction import Reconstructor
     from app.recording import Recording
-    from app.segmentation import SegmentationParams, camera_segmenter, estimate_background_robust, matched_scale
+    from app.segmentation import SegmentationParams, camera_segmenter, recording_background, matched_scale
 
     rec = Recording(recording)
     calib = rec.calibration
@@ -85,10 +85,8 @@ def _compute(recording: Path, voxel_size: float, frames, progress):
     params = SegmentationParams(scale=scale)
     segs = {}
     for cam in rec.cameras:
-        bg = rec.background(cam)   # as the segmentation worker: people left out, the floor's shadow test
-        if bg is None:
-            bg, _ = estimate_background_robust(rec.sample(cam, 25))
-        segs[cam] = camera_segmenter(params, bg, calib, cam)
+        # as the segmentation worker: people left out, the floor's shadow test
+        segs[cam] = camera_segmenter(params, recording_background(rec, cam), calib, cam)
     fps = float(getattr(calib, "fps", 25.0) or 25.0)
     recon = None
     out = []
