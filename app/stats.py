@@ -214,6 +214,7 @@ class StageLedger:
         now = self.clock()
         self._trim(now)
         span = min(WINDOW_S, max(1e-6, now - self.started))
+        busy_span = min(span, max(1e-6, now - self.first_in)) if self.first_in is not None else span
         win_in = sum(1 for e in self._events if e[1] == "in")
         win_lat = [e[2] for e in self._events if e[1] == "out"]
         frames_in, frames_out = self.seen.count, self.done.count
@@ -246,7 +247,9 @@ class StageLedger:
             "latency_ms": percentiles(self._span(self.latency_ms, final)),
             "latency_window_ms": percentiles(win_lat),
             "process_ms": percentiles(self._span(self.process_ms, final)),
-            "busy": round(min(1.0, sum(b[1] for b in self._busy) / span), 3),
+            # the share of the window since the first frame arrived: a stage that waited for
+            # frames (start-up) is not idle, and must not look less busy than one ahead of it
+            "busy": round(min(1.0, sum(b[1] for b in self._busy) / busy_span), 3),
             "busy_total": round(min(1.0, self.process_total / max(1e-6, now - (self.first_in or now))), 3)
             if self.first_in is not None else 0.0,
             "cpu_percent": round(cpu_percent, 1),

@@ -29,6 +29,22 @@ def test_ledger_counts_drops_and_missing_frames():
     assert fig["frames_in"] + fig["frames_missing"] == 10
 
 
+def test_busy_counts_from_the_first_frame():
+    """A stage that waited for its first frame (start-up) and works flat out since is busy 1.0,
+    so the monitor does not name a faster stage ahead of it the bottleneck."""
+    clock = Clock()
+    led = StageLedger(clock)
+    clock.now += 1.8            # waiting for frames
+    for f in range(2):
+        led.received(f, stamp=clock.now)
+        clock.now += 0.1
+        led.processed(0.1, f)
+        led.emitted(f, stamp=clock.now - 0.1)
+    assert led.figures()["busy"] == 1.0
+    idle = StageLedger(clock)
+    assert idle.figures()["busy"] == 0.0
+
+
 def test_summary_rtf_is_fps_over_recording_fps():
     stages = {
         "grabber": {"stage": "grabber", "order": 0, "figures": {"frames_out": 100, "fps": 25.0}},
