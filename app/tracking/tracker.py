@@ -23,7 +23,9 @@ Each frame (:meth:`MultiTracker.update`):
    the blob of a tracked one is found too) and their centroid is farther than
    ``new_distance`` from every target and higher than ``new_min_z`` (beyond the thesis:
    lower blobs are phantoms and pieces of the hull, not people); a candidate seen at
-   about the same place for ``confirm_frames`` frames becomes a track with a new id;
+   about the same place for ``confirm_frames`` frames becomes a track with a new id (a
+   component's candidate is placed by its upper body, ``candidate_min_z``, so a phantom
+   merged into it for a frame or two does not move it and restart the count);
 4. re-identification (beyond the thesis, ``reid_frames``; 0 turns it off): a track
    confirmed where a track ended for a no-person verdict a moment ago, and, with colour,
    dressed alike, takes the ended track's id, so a person whose track was dropped for
@@ -82,6 +84,7 @@ class TrackerParams:
     claim_radius: float = 0.45     # voxels this close to a target (xy) are its own
     confirm_frames: int = 5
     new_min_z: float = 0.6         # no new track whose candidate's centroid is lower (m; -inf: any)
+    candidate_min_z: float = 0.9   # a new component's candidate placed (xy) by its voxels this high (m; -inf: all)
     duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
     duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
     duplicate_similarity: float = 0.5   # colour filters: ... and dressed alike (Bhattacharyya >= this; 0: the thesis)
@@ -304,7 +307,7 @@ class MultiTracker:
         present = np.nonzero(np.bincount(free_labels, minlength=scene.components))[0]
         for c in present:
             if c not in hosts:                           # a component no target holds
-                centre = self._component_centre(scene, c)
+                centre = self._candidate_centre(scene, c)
                 if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance ** 2).any():
                     continue
                 found.append(centre)
@@ -356,6 +359,23 @@ class MultiTracker:
             columns.component_sums(scene.indices, scene.labels, scene.origin, scene.voxel_size, sums, counts)
             self._centres = sums / np.maximum(counts, 1)[:, None]
         return self._centres[c].copy()
+
+    def _candidate_centre(self, scene: SceneFrame, c: int) -> np.ndarray:
+        """Where a component no target holds puts its candidate: beyond the thesis
+        (``candidate_min_z``), the xy of the centroid of its voxels at least that high (the
+        upper body, as ``refine`` places targets), z the whole component's. The k = 1 hull
+        at 2 cm merges a person with the phantom of the room's corner for a few frames
+        (gesture1 frames 1-4: the component's centroid 0.55 m off the body, the upper
+        voxels' within 2 cm), which moved the candidate, restarted its confirmation and
+        delayed the track to frame 9; ``-inf`` keeps the component's centroid (the thesis)."""
+        centre = self._component_centre(scene, c)
+        if self.p.candidate_min_z == -np.inf:
+            return centre
+        kz = int(np.floor((self.p.candidate_min_z - scene.origin[2]) / scene.voxel_size))
+        upper = (scene.labels == c) & (scene.indices[:, 2] >= kz)
+        if upper.sum() >= 3:
+            centre[:2] = scene.origin[:2] + (scene.indices[upper, :2].mean(axis=0) + 0.5) * scene.voxel_size
+        return centre
 
     def _reidentify(self, scene: SceneFrame, target) -> int:
         """Beyond the thesis (``reid_frames``): a new track confirmed within
