@@ -59,13 +59,15 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
     rec = segs = None
     if source in ("hull", "mog2"):
         from app.reconstruction import Reconstructor
-        from app.segmentation import CameraSegmenter, SegmentationParams, matched_scale
+        from app.segmentation import SegmentationParams, camera_segmenter, matched_scale
         scale = matched_scale(cal, voxel_size)
         sizes = {c.name: (c.width // scale, c.height // scale) for c in cal.cameras}
         rec = Reconstructor(cal, voxel_size, mask_sizes=sizes, colouring="visibility" if surface else "none",
                             min_top=0.25, tolerance=tolerance, occlusion=occlusion)
         if source == "mog2":
-            segs = {c: CameraSegmenter(SegmentationParams(scale=scale), sim.background(c)) for c in sim.cameras}
+            # as the segmentation worker builds them: the floor's dark-shadow test needs the calibration
+            segs = {c: camera_segmenter(SegmentationParams(scale=scale), sim.background(c), cal, c)
+                    for c in sim.cameras}
     wanted = set(frames)
     out = []
     for i in range(min(frames) if segs is None else 0, max(frames) + 1):
