@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = ["survival_rate", "annealing_exponent", "propagate", "systematic_resample", "adaptive_resample",
            "normalised_weights", "weighted_mean"]
@@ -80,10 +81,56 @@ def normalised_weights(log_w: np.ndarray, beta: float = 1.0) -> np.ndarray:
     return w / w.sum()
 
 
+@njit(cache=True, nogil=True)
+def _propagate_rows(mu, sigma, lo, hi, rng, tries, out, bad_i, bad_j):
+    """:func:`propagate` for a per-DoF ``sigma (D,)`` in one numba loop: the same draws
+    from the same generator in the same order (numba's ``Generator`` shares the bit
+    generator's state and its normal and uniform algorithms with numpy's), so the
+    results are identical to the numpy version below."""
+    P, D = mu.shape
+    n = 0
+    for i in range(P):
+        for j in range(D):
+            v = mu[i, j] + rng.standard_normal() * sigma[j]
+            out[i, j] = v
+            if v < lo[j] or v > hi[j]:
+                bad_i[n], bad_j[n] = i, j
+                n += 1
+    for _ in range(tries):
+        if n == 0:
+            return
+        kept = 0
+        for t in range(n):
+            i, j = bad_i[t], bad_j[t]
+            v = mu[i, j] + rng.standard_normal() * sigma[j]
+            out[i, j] = v
+            if v < lo[j] or v > hi[j]:
+                bad_i[kept], bad_j[kept] = i, j
+                kept += 1
+        n = kept
+    for t in range(n):
+        i, j = bad_i[t], bad_j[t]
+        a = min(max(mu[i, j] - 3 * sigma[j], lo[j]), hi[j])
+        b = min(max(mu[i, j] + 3 * sigma[j], lo[j]), hi[j])
+        out[i, j] = a + rng.random() * (b - a)
+
+
 def propagate(states: np.ndarray, sigma: np.ndarray, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator,
               tries: int = 8) -> np.ndarray:
     """Every state diffused by ``N*(0, diag(sigma^2))`` truncated to ``[lo, hi]`` (§6.3.4)."""
     mu = np.asarray(states, dtype=np.float64)
+    if mu.ndim == 2 and np.ndim(sigma) == 1 and np.ndim(lo) == 1 and np.ndim(hi) == 1 \
+            and isinstance(rng, np.random.Generator) and len(mu):
+        out = np.empty(mu.shape)
+        bad_i, bad_j = np.empty(mu.size, np.int64), np.empty(mu.size, np.int64)
+        _propagate_rows(np.ascontiguousarray(mu), np.ascontiguousarray(sigma, dtype=np.float64),
+                        np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64),
+                        rng, int(tries), out, bad_i, bad_j)
+        return out
+    return _propagate_numpy(mu, sigma, lo, hi, rng, tries)
+
+
+def _propagate_numpy(mu, sigma, lo, hi, rng, tries=8):
     sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), mu.shape)
     out = mu + rng.standard_normal(mu.shape) * sigma
     lo_b, hi_b = np.broadcast_to(lo, mu.shape), np.broadcast_to(hi, mu.shape)
