@@ -154,9 +154,13 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
     :func:`_part_boxes`; per active part: every point placed (:func:`_place`,
     vectorised), occupancy and surface gathered, and the double-occupancy grid
     ``do_stamp`` stamped by the points in the part's box, one int64 per cell packing
-    ``token * 32 + 2 * part + shared`` (a cell stamped by an earlier particle has a
-    smaller token, so the grid is never cleared); last, each part that met another
-    counts its points in shared cells (Eq. 6.14)."""
+    ``token * 2048 + 128 * part + 64 * shared + points`` (a cell stamped by an earlier
+    particle has a smaller token, so the grid is never cleared; ``points`` counts the
+    first part's points in the cell: a part's points lie on a lattice of the cell's
+    spacing, so a cell holds at most 8 of them, well under the field's 63): a point counts for Eq. 6.14 when it
+    lands in a shared cell, and the first part's points of a cell when another part
+    makes it shared, so every point in a shared cell is counted once, without a second
+    pass over the parts' points."""
     S = seg_parent.shape[0]
     Q = part_start.shape[0] - 1
     R = np.zeros((S, 3, 3))
@@ -166,7 +170,7 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
     do_cell = np.empty(M, dtype=np.int64)
     inv = 1.0 / vsize
     dinv = 1.0 / do_size
-    involved = np.zeros(Q, dtype=np.bool_)
+    n_do = np.zeros(Q, dtype=np.int64)
     cbox = np.empty((Q, 6))
     box = np.empty((Q, 6))
     in_room = np.zeros(Q, dtype=np.bool_)
@@ -177,13 +181,12 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
             on[n_on] = q
             n_on += 1
     for k in range(states.shape[0]):
-        token = (token0 + k) * 32
+        token = (token0 + k) * 2048
         fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O, need)
         _part_boxes(on, n_on, R, O, part_segment, part_centre, part_half, origin, dinv, do_dims, room_lo, room_hi,
                     cbox, box, in_room)
-        shared = False
         for q in range(Q):
-            involved[q] = False
+            n_do[q] = 0
             for c in range(5):
                 out[k, q, c] = 0.0
         for t in range(n_on):
@@ -207,30 +210,23 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
             out[k, q, 4] = part_surface[q]
             if not stamp:
                 continue
-            mine = token + 2 * q
+            mine = token + q * 128
             for m in range(np.uint64(m0), np.uint64(m1)):
                 f = do_cell[m]
                 if f >= 0:
                     code = do_stamp[f]
-                    if code < token:
-                        do_stamp[f] = mine
-                    elif (code | 1) != (mine | 1):
-                        if code & 1 == 0:
-                            do_stamp[f] = code | 1
-                            involved[(code >> 1) & 15] = True
-                        involved[q] = True
-                        shared = True
-        if not shared:
-            continue
+                    if code < token:                  # first in this particle: the part's, one point
+                        do_stamp[f] = mine + 1
+                    elif code & 64:                   # already shared: this point counts
+                        n_do[q] += 1
+                    elif (code & 1984) == mine & 1984:   # the part's own cell: one more point
+                        do_stamp[f] = code + 1
+                    else:                             # shared from now: the owner's points and this one
+                        do_stamp[f] = code | 64
+                        n_do[(code >> 7) & 15] += code & 63
+                        n_do[q] += 1
         for q in range(Q):
-            if not involved[q]:
-                continue
-            n = 0
-            for m in range(np.uint64(part_start[q]), np.uint64(part_start[q + 1])):
-                f = do_cell[m]
-                if f >= 0 and do_stamp[f] & 1:
-                    n += 1
-            out[k, q, 1] = n
+            out[k, q, 1] = n_do[q]
 
 
 @njit(cache=True, nogil=True)
