@@ -141,15 +141,18 @@ def _part_boxes(on, n_on, R, O, part_segment, part_centre, part_half, origin, di
 
 @njit(cache=True, nogil=True)
 def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_surface, part_centre, part_half,
-                    active, need, occ, prox, sentinel, dims, origin, vsize, room_lo, room_hi,
+                    active, need, grid, sentinel, dims, origin, vsize, room_lo, room_hi,
                     do_stamp, do_dims, do_size, token0, out, seg_parent, seg_offset, dof_segment, dof_axis):
     """Scores ``out (P, Q, 5)`` = (outside, double, occupied, surface-miss, surface count)
     *counts* per part for every state ``(P, 27)``; only parts with ``active[q]``.
 
     The LUT (:class:`Lut`) is in structure-of-arrays form ``lx, ly, lz``, grouped by
-    part (``part_start``), each part's surface points first. ``occ`` (uint8) and
-    ``prox`` (float32) are the observation grids flattened, with ``sentinel`` the
-    index of a cell empty in both (where points outside the box look).
+    part (``part_start``), each part's surface points first. ``grid`` (float32) is the
+    observation flattened into one array: the proximity ``~V^S`` of each cell with its
+    sign bit set where the cell is occupied (``-0.0`` for an occupied cell of
+    proximity 0), so that one gather gives both (exact: the magnitude is the
+    proximity, untouched), with ``sentinel`` the index of a cell empty in both (``+0.0``:
+    where points outside the box look).
     Per particle: forward kinematics of the ``need``-ed segments only, the parts'
     :func:`_part_boxes`; per active part: every point placed (:func:`_place`,
     vectorised), occupancy and surface gathered, and the double-occupancy grid
@@ -157,10 +160,10 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
     ``token * 2048 + 128 * part + 64 * shared + points`` (a cell stamped by an earlier
     particle has a smaller token, so the grid is never cleared; ``points`` counts the
     first part's points in the cell: a part's points lie on a lattice of the cell's
-    spacing, so a cell holds at most 8 of them, well under the field's 63): a point counts for Eq. 6.14 when it
-    lands in a shared cell, and the first part's points of a cell when another part
-    makes it shared, so every point in a shared cell is counted once, without a second
-    pass over the parts' points."""
+    spacing, so a cell holds at most 8 of them, well under the field's 63): a point
+    counts for Eq. 6.14 when it lands in a shared cell, and the first part's points of
+    a cell when another part makes it shared, so every point in a shared cell is
+    counted once, without a second pass over the parts' points."""
     S = seg_parent.shape[0]
     Q = part_start.shape[0] - 1
     R = np.zeros((S, 3, 3))
@@ -199,11 +202,11 @@ def score_particles(states, height, lx, ly, lz, part_start, part_segment, part_s
             n_occ = 0
             n_miss = 0
             for m in range(np.uint64(m0), np.uint64(ms)):
-                c = cell[m]
-                n_occ += np.int64(occ[c] != 0)
-                n_miss += np.int64((1.0 - prox[c]) * _FIXED)
+                v = grid[cell[m]]
+                n_occ += np.int64(math.copysign(1.0, v) < 0.0)
+                n_miss += np.int64((1.0 - abs(v)) * _FIXED)
             for m in range(np.uint64(ms), np.uint64(m1)):
-                n_occ += np.int64(occ[cell[m]] != 0)
+                n_occ += np.int64(math.copysign(1.0, grid[cell[m]]) < 0.0)
             out[k, q, 0] = n_out
             out[k, q, 2] = n_occ
             out[k, q, 3] = n_miss / _FIXED
@@ -368,7 +371,9 @@ class Scorer:
             else:
                 occ, prox = np.append(occ, np.uint8(0)), np.append(prox, np.float32(0))
                 sentinel = len(occ) - 1
-        self._occ, self._prox, self._sentinel = occ, prox, sentinel
+        grid = np.array(prox, dtype=np.float32)       # the kernel's one gather: sign bit = occupied
+        np.negative(grid, out=grid, where=occ != 0)
+        self._grid, self._sentinel = grid, sentinel
 
     def counts(self, states: np.ndarray, active=None) -> np.ndarray:
         obs, f, lut = self.obs, self.flesh, self.lut
@@ -379,7 +384,7 @@ class Scorer:
         need = lut.part_needs[act].any(axis=0)
         score_particles(states, f.height, lut.lx, lut.ly, lut.lz, lut.part_start, lut.part_segment,
                         lut.part_surface, lut.part_centre, lut.part_half, act, need,
-                        self._occ, self._prox, self._sentinel, self._dims, self._origin, obs.voxel_size,
+                        self._grid, self._sentinel, self._dims, self._origin, obs.voxel_size,
                         np.asarray(obs.room_lo, np.float64), np.asarray(obs.room_hi, np.float64),
                         self._stamp, self._do_dims, f.spacing, self._token, out,
                         SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS)
