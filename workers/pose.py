@@ -53,6 +53,9 @@ class Pose(Worker):
         "particles": 600,           # APF: particles per layer
         "layers": 6,                # APF: annealing layers
         "gamma": 50,                # SHBM-APF: particles per new DoF (Eq. 7.28)
+        "gamma_budget": 75,         # SHBM-APF: gamma shared by the people posed in a frame (min gamma, >= gamma_min
+                                    # each: 1 person 50, 2: 37, 3: 25); 0 = gamma for everyone (thesis)
+        "gamma_min": 20,
         "importance_fraction": 0.2,  # IAPF: first-layer particles drawn from the detections
         "coverage": 0.003,          # sigma^2 of the coverage term for fat hulls (app.pose.coverage); 0 = thesis
         "coverage_partial": True,   # coverage also on SHBM-APF's partial models
@@ -71,6 +74,7 @@ class Pose(Worker):
                "ik": ("table", "straight"), "voxels": ("consensus", "all"),
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
+              "gamma_budget": (0, 5000), "gamma_min": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "feet": (0.0, 10.0)}
 
@@ -80,6 +84,7 @@ class Pose(Worker):
         try:
             self.settings = PoseSettings(method=p["method"], density=float(p["density"]), likelihood=p["likelihood"],
                                          particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
+                                         gamma_budget=int(p["gamma_budget"]), gamma_min=int(p["gamma_min"]),
                                          importance_fraction=float(p["importance_fraction"]),
                                          coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
                                          floor=float(p["floor"]), heading=float(p["heading"]), feet=float(p["feet"]),

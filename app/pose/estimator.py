@@ -50,6 +50,8 @@ class PoseSettings:
     layers: int = 6                 # APF: annealing layers
     alpha: float = 0.5              # survival rate per layer
     gamma: int = 50                 # SHBM-APF: particles per new DoF
+    gamma_budget: int = 0           # SHBM-APF: gamma summed over the people posed in a frame; 0 = gamma each (thesis)
+    gamma_min: int = 20             # SHBM-APF: the least gamma the budget gives a person
     importance_fraction: float = 0.2
     coverage: float = 0.003         # sigma^2 of the coverage term (app.pose.coverage); 0 = the thesis's likelihood
     coverage_partial: bool = True   # coverage also on SHBM-APF's partial models (H1, H2)
@@ -82,6 +84,20 @@ class PoseSettings:
             raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
+        if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
+            raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
+
+    def shbm_gamma(self, people: int = 1) -> int:
+        """SHBM-APF's particles per new DoF (Eq. 7.28) for each of ``people`` posed in one
+        frame: the thesis's ``gamma``, or with a ``gamma_budget`` the budget shared among
+        them, ``min(gamma, max(gamma_min, budget // people))``, so that the frame's cost
+        stays about the same however many people there are (a real-time budget; the
+        thesis poses one person). Measured through the pipeline's voxels at 4 cm
+        (docs/benchmarks.md): meeting3's three people keep their MMTA with 25 each; one
+        person alone (gesture1, walk1) loses 0.01-0.03 with 25-40, so alone keeps 50."""
+        if self.gamma_budget <= 0 or people <= 1:
+            return int(self.gamma)
+        return int(min(self.gamma, max(self.gamma_min, self.gamma_budget // people)))
 
 
 def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float) -> np.ndarray:
@@ -149,9 +165,10 @@ class PersonPose:
             self.filter = APF(particles=s.particles, layers=s.layers, alpha=s.alpha, **kw)
         self.switch = LimbSwitch(rng=self.rng, criterion=s.limb_criterion) if s.method.endswith("ddm") else None
 
-    def update(self, centres: np.ndarray, surface, position: np.ndarray):
+    def update(self, centres: np.ndarray, surface, position: np.ndarray, gamma: int | None = None):
         """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
-        body is known."""
+        body is known; ``gamma``: SHBM-APF's particles per new DoF this frame (the
+        estimator's budget, :meth:`PoseSettings.shbm_gamma`), None for the settings'."""
         s = self.s
         velocity = None
         if self.last_position is not None:
@@ -170,6 +187,8 @@ class PersonPose:
                 keep = self.filter
                 self._make(h)
                 self.filter.particles = keep.particles
+        if gamma is not None and isinstance(self.filter, SHBMAPF):
+            self.filter.set_gamma(gamma)
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
         self.scorer.set_observation(obs)
         self.scorer.heading = None
@@ -232,6 +251,8 @@ class PoseEstimator:
         owner = assign_voxels(centres, positions, self.settings.reach)
         surface = None if surface is None or len(surface) != len(centres) else np.asarray(surface, bool)
         out = {}
+        posed = [tid for tid in ids if only is None or only(tid)]
+        gamma = self.settings.shbm_gamma(len(posed)) if self.settings.method.startswith("shbm") else None
         for k, tid in enumerate(ids):
             if only is not None and not only(tid):
                 continue
@@ -240,7 +261,7 @@ class PoseEstimator:
                 person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(
                     [self.settings.seed, tid]))
             mine = owner == k
-            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k])
+            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k], gamma)
             if res is not None:
                 out[tid] = res
         for gone in set(self.people) - set(ids):

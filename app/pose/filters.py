@@ -151,6 +151,18 @@ class SHBMAPF(_Base):
     def particles(self, value):
         self.sets = [value[adaptive_resample(np.ones(len(value)) / len(value), n, self.rng)] for n in self.sizes]
 
+    def set_gamma(self, gamma: int) -> None:
+        """Particles per new DoF from now on (Eq. 7.28, ``N = gamma K_delta``): the sets
+        already drawn are resampled to the new sizes (uniform weights: they come from
+        G_backward's resampling); nothing changes when the sizes stay."""
+        sizes = [int(gamma * len(d)) for d, _ in self.models]
+        if sizes == self.sizes:
+            return
+        self.sizes = sizes
+        if self.sets is not None:
+            self.sets = [s[adaptive_resample(np.full(len(s), 1.0 / len(s)), n, self.rng)]
+                         for s, n in zip(self.sets, sizes)]
+
     def reset(self, state, spread=None, importance=None) -> None:
         sig = self.sigma0 if spread is None else spread
         self.sets = []
