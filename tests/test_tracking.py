@@ -242,3 +242,23 @@ def test_colour_keeps_identities_through_a_hug_raw_swaps(back):
             assert score_tracking(truth, res).mismatches >= 2
         thesis = run(frames, "ss_colour", duplicate_similarity=0.0)
         assert any(len(thesis[f][0]) == 1 for f in range(30, 50))   # one of the huggers deleted
+
+
+def test_a_phantom_merged_for_a_few_frames_does_not_delay_the_track():
+    """A person stands still; in frames 1-4 a low phantom (the visual hull's room corner,
+    as on gesture1 at 2 cm) joins their blob and drags its centroid 0.5 m away. The
+    candidate is placed by the blob's upper body (``candidate_min_z``), so its
+    confirmation goes on and the track starts at frame 4 (``confirm_frames`` 5), where the
+    component's centroid (the thesis, ``-inf``) restarts the count when the phantom leaves."""
+    person = _cylinder(2.0, 2.0)
+    phantom = _box(2.1, 1.5, 3.6, 2.5, 0.8, z0=0.3)   # the merged blob: centroid 0.62 m off, 0.63 m high
+    frames = [frame_of(f, [(person, RED, BLUE)] + ([(phantom, GREY, GREY)] if 1 <= f <= 4 else []))
+              for f in range(14)]
+    first = {}
+    for name, z in (("upper body", 0.9), ("centroid", -np.inf)):
+        res = run(frames, candidate_min_z=z)
+        first[name] = min(f for f, (ids, _) in res.items() if len(ids))
+        ids, pos = res[13]
+        assert len(ids) == 1 and np.hypot(pos[0, 0] - 2.0, pos[0, 1] - 2.0) < 0.1
+    assert first["upper body"] == 4, first
+    assert first["centroid"] > 4, first

@@ -1,0 +1,54 @@
+"""The pose priors for visual hulls beyond the thesis (app.pose.coverage): the stance
+prior (a person standing still has the feet under the hips) on its own and on a clip
+whose right foot is missing from the voxels, as gesture1's k = 0 hull lacks it."""
+import numpy as np
+import pytest
+
+from app.messages import JOINTS
+from app.pose.coverage import STANCE_FREE, stance_penalty
+from app.pose.estimator import PoseSettings
+from app.pose.model import DOF, BodyModel, neutral_state
+from app.pose.offline import clip_errors, run_clip, simulated_clip
+
+J = {n: i for i, n in enumerate(JOINTS)}
+H = 1.75
+
+
+def test_stance_penalty_holds_upright_legs_only():
+    stand = neutral_state(H, (1.0, 2.0, None))
+    wide = stand.copy()
+    wide[DOF["r_hip_abd"]] = 0.5                # the right foot 0.4 m out to the side
+    sit = stand.copy()
+    sit[2] -= 0.45                              # the pelvis down to a chair
+    for side in "lr":
+        sit[DOF[f"{side}_hip_flex"]] = 1.5      # thighs forward, shins down: feet 0.45 m ahead
+        sit[DOF[f"{side}_knee"]] = 1.5
+    joints = BodyModel(H).joints(sit)
+    assert np.hypot(*(joints[J["r_ankle"], :2] - joints[J["r_hip"], :2])) > 0.3   # far from under the hip
+    pen = stance_penalty(np.stack([stand, wide, sit]), H, 0.03)
+    assert pen[0] == 0.0                        # standing straight: within STANCE_FREE
+    assert pen[2] == 0.0                        # sitting: not an upright leg, not held
+    d = np.hypot(*(BodyModel(H).joints(wide)[J["r_ankle"], :2] - BodyModel(H).joints(wide)[J["r_hip"], :2]))
+    assert pen[1] == pytest.approx(0.5 * ((d - STANCE_FREE) / 0.03) ** 2)
+
+
+@pytest.fixture(scope="module")
+def footless_clip():
+    """gesture1 (standing, waving), 1 s at 2 cm, the visual hull (k = 0) of the true
+    silhouettes: one camera sees the feet behind furniture, so the hull has no right foot
+    (docs/benchmarks.md, Pose on the reconstructed hull)."""
+    return simulated_clip("gesture1", range(0, 25), 0.02, source="hull", tolerance=0)
+
+
+def test_stance_prior_keeps_the_footless_leg_under_the_hip(footless_clip):
+    clip, cal = footless_clip
+    within = {}
+    for stance in (0.0, 0.03):
+        s = PoseSettings(voxel_size=0.02, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
+                         stance=stance)
+        E = clip_errors(clip, run_clip(clip, s)["estimates"])[5:]
+        assert not np.isnan(E).any()
+        within[stance] = float((E[:, J["r_ankle"]] <= 0.1).mean())
+        print(f"stance {stance}: right ankle within 100 mm in {within[stance]:.2f} of the frames, "
+              f"median {1e3 * np.median(E[:, J['r_ankle']]):.0f} mm, MPJPE {1e3 * E.mean():.0f} mm")
+    assert within[0.03] >= 0.9, within
