@@ -50,22 +50,29 @@ class Reconstruction(Worker):
         "camera_timeout_s": 1.0,     # a camera silent this long is not waited for
         "cache": False,              # keep projection tables on disk between runs (~140 MB at 2 cm)
         "min_top": 0.25,             # drop blobs lower than this (m): floor shadows; 0 = thesis (keep all)
-        "occlusion": "none",         # none (§2.2.4) or learnt: occluder masks learnt over the run (Guan et al. 2006)
+        "occlusion": "none",         # none (§2.2.4), learnt: occluder masks learnt over the run (Guan et al. 2006),
+                                     # or cells: occlusion learnt per voxel cell and camera (occlusion_cells.py)
         "learn_every": 1,            # learnt occluders: learn from every n-th frame (0: stop learning)
-        "occlusion_evidence": 4,     # learnt occluders: frames of evidence that make a pixel an occluder
+        "occlusion_evidence": 0,     # learnt occluders: frames of evidence that make a pixel (cell) an occluder;
+                                     # 0: the model's default (learnt 4, cells 2)
+        "occlusion_ratio": 0.0,      # evidence / (evidence + seen) needed; 0: the model's default (learnt 0.6, cells 0.5)
+        "occlusion_cell": 0.08,      # cells: side of a cell (m)
         "occlusion_top": 0.0,        # learnt occluders: only below this height (m; furniture is low); 0 = no limit
         "footprint": 0.0,            # silhouette-edge test: accept a voxel when this fraction of the 3x3 pixels
                                      # around its centre pixel is foreground; 0 = the centre pixel (§2.2.4)
         "min_component": 0,          # drop connected components of fewer voxels (ghosts); 0 = keep all
+        "ghost_share": 0.0,          # drop components no camera needs (share of their pixels no other component
+                                     # covers, in every camera, under this; app/reconstruction/ghosts.py); 0 = keep all
         "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
                                      # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
               "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
-              "occlusion_evidence": (1, 100000),
+              "occlusion_evidence": (0, 100000), "occlusion_ratio": (0.0, 1.0), "occlusion_cell": (0.01, 1.0),
+              "ghost_share": (0.0, 1.0),
               "footprint": (0.0, 1.0), "min_component": (0, 1_000_000)}
-    CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none")}
+    CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none"), "occlusion": ("none", "learnt", "cells")}
 
     def setup(self) -> None:
         from app.reconstruction import Reconstructor
@@ -93,7 +100,8 @@ class Reconstruction(Worker):
                 tolerance=p["tolerance"], min_views=p["min_views"], method=p["method"],
                 colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"],
                 occlusion=p["occlusion"], learn_every=p["learn_every"], occlusion_top=p["occlusion_top"],
-                occlusion_evidence=p["occlusion_evidence"],
+                occlusion_evidence=p["occlusion_evidence"] or None, occlusion_ratio=p["occlusion_ratio"] or None,
+                occlusion_cell=p["occlusion_cell"], ghost_share=p["ghost_share"],
                 footprint=p["footprint"], min_component=p["min_component"], misses=bool(p["misses"]))
         except ValueError as exc:
             raise InputError(f"reconstruction: {exc}") from None

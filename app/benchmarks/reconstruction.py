@@ -153,6 +153,8 @@ HULL_VARIANTS = (
     # the same learning from every 4th frame, one piece of evidence enough: a quarter of the learning's cost
     ("tight/4", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0, "learn_every": 4,
                  "occlusion_evidence": 1}),
+    # occlusion learnt per 8 cm cell and camera instead of per pixel (app/reconstruction/occlusion_cells.py)
+    ("cells", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0}),
 )
 
 
@@ -305,6 +307,7 @@ SPEED_VARIANTS = (
                               "learn_every": 8}),
     ("mog2 tight/4", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
                               "learn_every": 4, "occlusion_evidence": 1}),
+    ("mog2 cells", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0}),
 )
 SPEED_BUDGET_MS = 30.0
 

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 import cv2
 import numpy as np
 
+from app.components import Labeller
 from calibration import Calibration
 
 from .carving import (MAX_CAMERAS, carve_cells, carve_cells_occluded, classify_cells, dissent_cells, fill_cells,
@@ -22,15 +23,17 @@ from .colouring import COLOURINGS, VoxelColourer
 from .consensus import count_misses, select_misses
 from .floor import FloorBlobFilter
 from .footprint import GhostFilter, accept_map
+from .ghosts import ExplainedFilter
 from .fused import chi2_thresholds, classify_cells_fused
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
 from .occlusion import OccluderModel
+from .occlusion_cells import CellOccluders, select_and_learn
 from .projection import ProjectionTable
 
 __all__ = ["Reconstructor", "METHODS", "OCCLUSIONS"]
 
 METHODS = ("hierarchical", "flat", "fused")
-OCCLUSIONS = ("none", "learnt")
+OCCLUSIONS = ("none", "learnt", "cells")
 
 
 class Reconstructor:
@@ -68,9 +71,19 @@ class Reconstructor:
     occlusion : ``"none"`` (the thesis: every camera that sees a voxel votes) or
         ``"learnt"``: occluder masks learnt over the run (:mod:`.occlusion`, Guan et al.
         2006); a camera abstains behind its occluders, so ``tolerance = 0`` keeps what
-        furniture hides from one camera without the excess of ``tolerance = 1``.
+        furniture hides from one camera without the excess of ``tolerance = 1``; or
+        ``"cells"``: occlusion learnt per voxel cell and camera (:mod:`.occlusion_cells`):
+        a camera may be the one to miss a voxel only in cells where it has repeatedly
+        been the one dissenter behind the free space it has seen.
+    occlusion_cell : ``"cells"``: the side of a cell (m, default 0.08).
+    occlusion_attached : ``"cells"``: keep a voxel one camera missed only in a connected
+        component (26-neighbourhood) that holds a voxel no camera missed (one of a
+        component that passes ``min_top``, with the floor filter), so phantoms of the
+        other views and floor shadows next to a person are not published as pieces.
     occlusion_evidence, occlusion_ratio, occlusion_support, occlusion_margin : the
-        occluder test of :class:`~.occlusion.OccluderModel`.
+        occluder test of :class:`~.occlusion.OccluderModel` (``"learnt"``; evidence and
+        ratio default to 4 and 0.6) and of :class:`~.occlusion_cells.CellOccluders`
+        (``"cells"``; default 2 and 0.5, the best of those measured, docs/benchmarks.md).
     learn_every : learn occluders from every n-th reconstructed frame (0: never, the
         masks stay as they are).
     abstain_support : a voxel on which a camera abstains behind an occluder needs
@@ -90,6 +103,11 @@ class Reconstructor:
     min_component : drop connected components of fewer voxels than this from the
         published voxels (ghosts where silhouette cones of different people meet); 0
         (the thesis) keeps all. Applied after ``min_top``.
+    ghost_share : drop the connected components that no camera needs (ghosts where the
+        cones of different people meet, :mod:`.ghosts`): a component is kept when in some
+        camera at least this share (and 5) of the foreground pixels it projects to are
+        covered by no other component; 0 (the thesis) keeps all. Applied after
+        ``min_top``, before ``min_component``.
     misses : also count, per published voxel, the cameras that call it background
         (:mod:`.consensus`; the ``k = 0`` subset of a ``k = 1`` hull is ``misses == 0``);
         after :meth:`reconstruct` they are in :attr:`misses` (N,) uint8 (empty when off).
@@ -100,17 +118,20 @@ class Reconstructor:
                  method: str = "hierarchical", colouring: str = "visibility", brick: int = 8,
                  box_levels: int = 2, splat: float = 1.0, depth_tolerance: float = 3.0, march: int = 6,
                  threads: int = 1, cache: bool = False, warm_up: bool = True, min_top: float = 0.0,
-                 occlusion: str = "none", occlusion_evidence: int = 4, occlusion_ratio: float = 0.6,
+                 occlusion: str = "none", occlusion_evidence: int | None = None, occlusion_ratio: float | None = None,
                  occlusion_support: int = 3, occlusion_margin: float = 0.1, learn_every: int = 1,
                  abstain_support: bool = True, alpha: float = 0.99, samples: str = "all",
                  footprint: float = 0.0, footprint_radius: int = 1, min_component: int = 0,
-                 occlusion_top: float = 0.0, misses: bool = False):
+                 occlusion_top: float = 0.0, misses: bool = False, occlusion_cell: float = 0.08,
+                 occlusion_attached: bool = True, ghost_share: float = 0.0):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
             raise ValueError(f"colouring must be one of {', '.join(COLOURINGS)}, got {colouring!r}")
         if occlusion not in OCCLUSIONS:
             raise ValueError(f"occlusion must be one of {', '.join(OCCLUSIONS)}, got {occlusion!r}")
+        if occlusion == "cells" and not occlusion_cell > 0:
+            raise ValueError(f"occlusion_cell must be > 0 m, got {occlusion_cell}")
         if occlusion != "none" and method == "fused":
             raise ValueError("learnt occluders work with the hierarchical and flat methods, not with fused")
         if not 0.0 <= footprint <= 1.0 or footprint_radius < 1 or min_component < 0:
@@ -151,11 +172,16 @@ class Reconstructor:
         self.footprint = float(footprint)
         self.footprint_radius = int(footprint_radius)
         self.ghosts = GhostFilter(self.grid.dims, min_component) if min_component > 0 else None
+        if not 0.0 <= ghost_share <= 1.0:
+            raise ValueError(f"ghost_share must be in [0, 1], got {ghost_share}")
+        self.explained = None       # set once the projection tables exist (below)
         self.colourer = VoxelColourer(self.grid, self.colour_cameras, colouring, splat=splat,
                                       depth_tolerance=depth_tolerance, march=march, threads=threads)
         # per-frame buffers, allocated once
         t = self.table
         self._votes = np.zeros(t.mask_total + 1, dtype=np.uint8)     # + the 0 sentinel
+        if ghost_share > 0:
+            self.explained = ExplainedFilter(self.grid.dims, t.mask_total, ghost_share)
         self._sat = np.zeros(t.sat_total, dtype=np.int32)
         if method == "fused":
             if not 0.5 <= alpha < 1.0:
@@ -169,6 +195,24 @@ class Reconstructor:
             self.thresholds = chi2_thresholds(alpha, largest if samples == "all" else int(np.ceil(np.sqrt(largest))) + 1)
             self._fused_masks: dict = {}
         self.occluders = None
+        self.cell_occluders = None
+        cells = occlusion == "cells"
+        if occlusion_evidence is None:
+            occlusion_evidence = 2 if cells else 4
+        if occlusion_ratio is None:
+            occlusion_ratio = 0.5 if cells else 0.6
+        # carving tolerance: "cells" carves at k + 1 and then selects (occlusion_cells)
+        self._carve_tolerance = self.tolerance + (1 if occlusion == "cells" else 0)
+        if occlusion == "cells":
+            cell = max(1, int(round(occlusion_cell / voxel_size)))
+            self.cell_occluders = CellOccluders(self.grid.dims, cell, len(self.names), t.mask_total,
+                                                occlusion_evidence, occlusion_ratio, occlusion_support)
+            g = self.grid
+            self._depth_coef = np.array([[*(c.R[2] * g.voxel_size), float(c.R[2] @ (g.origin + 0.5 * g.voxel_size))
+                                          + float(c.t[2])] for c in self.mask_cameras], dtype=np.float64)
+            self._keep = np.zeros(0, dtype=np.bool_)
+            self._sel_misses = np.zeros(0, dtype=np.uint8)
+            self._attached = Labeller(self.grid.dims) if occlusion_attached else None
         if occlusion == "learnt":
             self.occluders = OccluderModel(t.mask_total, occlusion_evidence, occlusion_ratio, occlusion_support,
                                            occlusion_margin)
@@ -314,6 +358,8 @@ class Reconstructor:
 
     def occluder_share(self) -> dict:
         """``{camera: fraction of its mask's pixels that are learnt occluder pixels}``."""
+        if self.cell_occluders is not None:
+            return {n: self.cell_occluders.share(c) for c, n in enumerate(self.names)}
         if self.occluders is None:
             return {}
         t = self.table
@@ -324,10 +370,50 @@ class Reconstructor:
         """Occupied voxels (N, 3) uint16, sorted by flat id, from ``{camera: mask or None}``."""
         cams = self._upload_masks(masks)
         indices = self._indices(self._carve_keys(cams))
+        if self.cell_occluders is not None:
+            indices, _ = self._select_cells(indices, cams)
         self._after_carving(cams)
         if self.floor is not None:
             indices = self.floor(indices)
+        if self.explained is not None:
+            indices = self.explained(indices, self.layout, self.table.lut, self._votes)
         return self.ghosts(indices) if self.ghosts is not None else indices
+
+    def _select_cells(self, indices: np.ndarray, cams: np.ndarray):
+        """``occlusion="cells"``: the voxels of the hull carved at ``k + 1`` that are
+        kept (at most ``k`` misses, or ``k + 1`` all behind learnt occlusion), their
+        misses, and this frame's evidence (:mod:`.occlusion_cells`)."""
+        occ, lay = self.cell_occluders, self.layout
+        n = len(indices)
+        if len(self._keep) < n:
+            self._keep = np.zeros(max(n, 2 * len(self._keep)), dtype=np.bool_)
+            self._sel_misses = np.zeros(len(self._keep), dtype=np.uint8)
+        keep, misses = self._keep[:n], self._sel_misses[:n]
+        learn = bool(self.learn_every) and (self.frames_carved + 1) % self.learn_every == 0 \
+            and len(cams) >= self.min_views
+        select_and_learn(indices, np.int64(lay.levels), lay.brick_dims_arr, self.table.lut, self._votes,
+                         self._depth_coef, np.int64(self.tolerance), np.int64(occ.support), np.int64(self._k_top),
+                         np.int64(occ.cell), occ.cell_dims, occ.occluded, learn, occ.free_depth, occ.seen_flag,
+                         occ.evidence_flag, keep, misses)
+        if learn:
+            occ.fold()
+        if keep.all():
+            return indices, misses.copy()
+        indices, misses = indices[keep], misses[keep]
+        if self._attached is not None and (misses > self.tolerance).any():
+            labels, count = self._attached(indices)
+            agreed = np.flatnonzero(misses <= self.tolerance)
+            if self.floor is not None:      # anchors: agreed voxels of components that pass the floor filter
+                sub = indices[agreed]
+                kept_sub = self.floor(sub)
+                if len(kept_sub) < len(sub):
+                    agreed = agreed[np.isin(self.grid.flat(sub), self.grid.flat(kept_sub))]
+            anchored = np.zeros(count, dtype=np.bool_)
+            anchored[labels[agreed]] = True
+            attached = anchored[labels]
+            if not attached.all():
+                indices, misses = indices[attached], misses[attached]
+        return indices, misses
 
     def _after_carving(self, cams) -> None:
         self.frames_carved += 1
@@ -338,7 +424,7 @@ class Reconstructor:
         """Sort keys of the occupied voxels (unsorted), from the uploaded masks."""
         t, lay = self.table, self.layout
         L = lay.levels
-        k, mv = self.tolerance, self.min_views
+        k, mv = self._carve_tolerance, self.min_views
         keys = self._keys
         if len(cams) < mv:
             return keys[:0]
@@ -397,15 +483,22 @@ class Reconstructor:
         cams = self._upload_masks(masks)
         indices = self._indices(self._carve_keys(cams))
         tm = time.perf_counter()
-        misses = self._count_misses(indices) if self.count_misses else None   # before occluders learn
-        tm = time.perf_counter() - tm
+        if self.cell_occluders is not None:     # selection and misses in one visit
+            indices, misses = self._select_cells(indices, cams)
+            misses = misses if self.count_misses else None
+            tm = 0.0
+        else:
+            misses = self._count_misses(indices) if self.count_misses else None   # before occluders learn
+            tm = time.perf_counter() - tm
         self._after_carving(cams)
         t1 = time.perf_counter()
         timings = {"carve": (t1 - t0) * 1e3 - tm * 1e3, "floor": 0.0, "surface": 0.0, "colour": 0.0}
-        if self.floor is not None or self.ghosts is not None:
+        if self.floor is not None or self.ghosts is not None or self.explained is not None:
             carved = indices
             if self.floor is not None:
                 indices = self.floor(indices)
+            if self.explained is not None:
+                indices = self.explained(indices, self.layout, self.table.lut, self._votes)
             if self.ghosts is not None:
                 indices = self.ghosts(indices)
             if misses is not None:
@@ -447,10 +540,14 @@ class Reconstructor:
         self.reconstruct(masks, images)
         if self.occluders is not None:  # the warm-up frames are no evidence
             self.occluders.reset()
+        if self.cell_occluders is not None:
+            self.cell_occluders.reset()
         self.frames_carved = 0
         if self.floor is not None:  # the tiny blob may leave no voxel for the floor filter
             self.floor(np.zeros((2, 3), dtype=np.uint16))
         if self.ghosts is not None:
             self.ghosts(np.zeros((2, 3), dtype=np.uint16))
+        if self.explained is not None:   # two components, so the kernel compiles here
+            self.explained(np.array([[0, 0, 0], [0, 0, 5]], dtype=np.uint16), self.layout, self.table.lut, self._votes)
         lay = self.layout
         fill_cells(self._root_cells[:0], 0, lay.brick_key, lay.local_key, self._keys, 0)   # may not have run
