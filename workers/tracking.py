@@ -26,6 +26,7 @@ class Tracking(Worker):
         "samples": 400,            # N_s (Sparse Sampling)
         "particles": 100,          # N_p (particle filter)
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
+        "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
         "seed": 0,
     }
     RANGES = {"samples": (10, 5000), "particles": (5, 2000)}
@@ -36,7 +37,8 @@ class Tracking(Worker):
 
         p = self.params
         try:
-            params = TrackerParams.from_dict({k: p[k] for k in ("filter", "samples", "particles", "seed")})
+            params = TrackerParams.from_dict({k: p[k] for k in ("filter", "samples", "particles", "seed")}
+                                             | {"candidate_min_z": float(p["candidate_min_z"])})
         except (TypeError, ValueError) as exc:
             raise InputError(f"tracking: {exc}") from None
         name = p["classifier"]
