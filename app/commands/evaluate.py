@@ -118,6 +118,11 @@ def main(args) -> int:
               f"{pose.get('mmtp_mm')} mm at {args.epsilon:g} mm, mu {pose.get('mu_mm')} mm, sigma "
               f"{pose.get('sigma_mm')} mm, MPJPE {pose.get('mpjpe_mm')} mm, PCP {pose.get('pcp')}, angles "
               f"{pose.get('mu_theta_deg')} +- {pose.get('sigma_theta_deg')} deg, epsilon_opt {pose.get('epsilon_opt')}")
+        b = pose.get("breakdown") or {}
+        if b.get("joints"):
+            worst = sorted(b["joint_loss"].items(), key=lambda x: -x[1])[:5]
+            print(f"pose MMTA lost: {b['unposed_share']} to people without a pose ({b['unposed']}), "
+                  + ", ".join(f"{n} {v}" for n, v in worst if v > 0) + " (eval.json: pose.breakdown)")
     if not report:
         raise InputError(f"{results}: holds nothing this version can score (voxels.bin: run with "
                          "--set recorder.voxels=true)")

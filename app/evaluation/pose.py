@@ -29,7 +29,8 @@ import numpy as np
 
 from app.messages import JOINTS
 
-__all__ = ["match_poses", "point_metrics", "epsilon_opt", "joint_angles", "pose_report", "ANGLES", "LIMBS_PCP"]
+__all__ = ["match_poses", "point_metrics", "epsilon_opt", "joint_angles", "pose_report", "pose_breakdown", "ANGLES",
+           "LIMBS_PCP"]
 
 J = {n: i for i, n in enumerate(JOINTS)}
 #: Angles of the reference parameterisation: (name, a, b, c) = angle at b between b->a and b->c.
@@ -184,6 +185,53 @@ def pose_report(frames, epsilon: float = 0.1, match_radius: float = 0.5, hidden:
     return rep
 
 
+def _ranges(frames: list) -> list:
+    """``[[first, last], ...]`` of runs of consecutive frame numbers."""
+    out = []
+    for f in sorted(frames):
+        if out and f == out[-1][1] + 1:
+            out[-1][1] = f
+        else:
+            out.append([f, f])
+    return out
+
+
+def pose_breakdown(frames, epsilon: float = 0.1, match_radius: float = 0.5, worst: int = 10) -> dict:
+    """Where the MMTA goes: ``frames`` a list of ``(frame number, truth {id: joints},
+    estimates {id: joints})``. ``unposed_share``: the share of all joints lost to people
+    without a pose (e.g. before the tracker confirms them); ``joint_loss``: per joint, the
+    share of all joints lost to that joint being posed farther than ``epsilon``
+    (``1 - MMTA = unposed_share + sum(joint_loss)``); ``unposed``: per person, the frame
+    ranges without a pose; ``bad_frames``: per person and joint, the frame ranges where
+    it is farther; ``worst``: the frames with most joints farther."""
+    total = 0
+    unposed, lost, bad, per_frame = {}, np.zeros(len(JOINTS)), {}, []
+    for f, truth, est in frames:
+        for gid, tid in match_poses(truth, est, match_radius):
+            total += len(JOINTS)
+            if tid is None:
+                unposed.setdefault(gid, []).append(f)
+                continue
+            far = np.linalg.norm(truth[gid] - est[tid], axis=1) > epsilon
+            lost += far
+            for j in np.flatnonzero(far):
+                bad.setdefault(gid, {}).setdefault(JOINTS[j], []).append(f)
+            if far.any():
+                per_frame.append((int(far.sum()), f, gid))
+    if not total:
+        return {"joints": 0}
+    per_frame.sort(key=lambda x: (-x[0], x[1]))
+    return {
+        "joints": total,
+        "unposed_share": round(sum(len(v) for v in unposed.values()) * len(JOINTS) / total, 4),
+        "joint_loss": {n: round(float(lost[j]) / total, 4) for j, n in enumerate(JOINTS)},
+        "unposed": {str(g): _ranges(v) for g, v in unposed.items()},
+        "bad_frames": {str(g): {n: _ranges(v) for n, v in sorted(d.items(), key=lambda x: -len(x[1]))}
+                       for g, d in bad.items()},
+        "worst": [{"frame": f, "person": g, "joints_off": k} for k, f, g in per_frame[:worst]],
+    }
+
+
 def evaluate_pose_files(recording, results, epsilon: float = 0.1, hidden: str = "all") -> dict:
     """Score ``<results>/poses.jsonl`` against ``<recording>/groundtruth.jsonl``."""
     from pathlib import Path
@@ -202,7 +250,7 @@ def evaluate_pose_files(recording, results, epsilon: float = 0.1, hidden: str = 
                                         for p in rec.get("poses", [])}
         except (KeyError, TypeError, ValueError):
             raise InputError(f"{pose_path}: frame {rec.get('frame')!r} has a pose without the 15 joints") from None
-    frames = []
+    frames, numbers = [], []
     for rec in read_jsonl(gt_path):
         f = int(rec["frame"])
         if f not in poses:
@@ -213,6 +261,8 @@ def evaluate_pose_files(recording, results, epsilon: float = 0.1, hidden: str = 
             hid = p.get("visible", {})
             visible[int(p["id"])] = np.array([hid.get(n, True) for n in JOINTS], dtype=bool)
         frames.append((truth, poses[f], visible))
+        numbers.append(f)
     report = pose_report(frames, epsilon=epsilon, hidden=hidden)
     report["frames_scored"] = len(frames)
+    report["breakdown"] = pose_breakdown([(f, t, e) for f, (t, e, _) in zip(numbers, frames)], epsilon=epsilon)
     return report
