@@ -143,7 +143,10 @@ class Publisher:
         self._pub = session.declare_publisher(key, congestion_control=cc)
 
     def put(self, msg: Message) -> int:
-        payload = msg.to_bytes()
+        return self.put_payload(msg.to_bytes())
+
+    def put_payload(self, payload: bytes) -> int:
+        """Publish an already encoded message (a stage sending its outputs again)."""
         self._pub.put(payload)
         return len(payload)
 

@@ -3,8 +3,8 @@
 ``voxels.bin`` (written by the recorder when asked, for evaluation and replay) is a
 sequence of records, each an 8-byte little-endian length followed by one encoded
 :class:`~app.messages.Voxels` message (the bus codec, so it is read back with the
-same decoder). Like every result file it is written as ``.partial`` and renamed
-when complete.
+same decoder), in frame order. Like every result file it is written as ``.partial``
+and renamed when complete (sorted first if a restart made frames come out of order).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ class VoxelWriter:
         self.path = Path(path)
         self.tmp = partial_path(self.path)
         self.frames = FrameSet()
+        self.ordered, self.last_frame = True, -1
         keep = 0
         if self.tmp.exists():
             with open(self.tmp, "rb") as fh:
@@ -42,9 +43,12 @@ class VoxelWriter:
                     if len(payload) < size:
                         break
                     try:
-                        self.frames.add(peek_frame(payload))
+                        frame = peek_frame(payload)
                     except MessageError:
                         break
+                    self.frames.add(frame)
+                    self.ordered = self.ordered and frame > self.last_frame
+                    self.last_frame = max(self.last_frame, frame)
                     keep += _LEN.size + size
             os.truncate(self.tmp, keep)
         self.fh = open(self.tmp, "ab", buffering=0)
@@ -67,12 +71,34 @@ class VoxelWriter:
             raise
         self.size += len(record)
         self.frames.add(msg.frame)
+        self.ordered = self.ordered and msg.frame > self.last_frame
+        self.last_frame = max(self.last_frame, msg.frame)
         return True
 
     def close(self, final: bool = True) -> None:
         self.fh.close()
-        if final:
-            os.replace(self.tmp, self.path)
+        if not final:
+            return
+        if not self.ordered:   # frames sent again to a restarted recorder came after newer ones
+            self._sort()
+        os.replace(self.tmp, self.path)
+
+    def _sort(self) -> None:
+        """Rewrite the records in frame order, one record in memory at a time."""
+        index = []
+        with open(self.tmp, "rb") as fh:
+            while True:
+                head = fh.read(_LEN.size)
+                if len(head) < _LEN.size:
+                    break
+                (size,) = _LEN.unpack(head)
+                index.append((peek_frame(fh.read(size)), fh.tell() - size, size))
+        sorted_tmp = self.tmp.with_name(self.tmp.name + ".sorted")
+        with open(self.tmp, "rb") as src, open(sorted_tmp, "wb") as dst:
+            for _, offset, size in sorted(index):
+                src.seek(offset)
+                dst.write(_LEN.pack(size) + src.read(size))
+        os.replace(sorted_tmp, self.tmp)
 
 
 def iter_voxels(path):

@@ -82,7 +82,7 @@ def recording_20s(tmp_path_factory):
 
 def test_every_worker_kind_killed_or_terminated_mid_run(recording_20s, tmp_path):
     """kill -9 and SIGTERM of each kind: each is back within seconds, the run completes,
-    voxels.bin holds every frame the recorder received before and after, counts add up."""
+    voxels.bin holds every frame (none lost in a killed worker's inbox), counts add up."""
     out = tmp_path / "out"
     layout = write_layout(tmp_path / "layout.yaml")
     proc = start_smartroom("run", "--recording", recording_20s, "--headless", "--layout", layout, "--out", out)
@@ -103,6 +103,7 @@ def test_every_worker_kind_killed_or_terminated_mid_run(recording_20s, tmp_path)
     finally:
         if proc.poll() is None:
             proc.kill()
+    (tmp_path / "launcher.err").write_text(err or "")   # the workers' logs, to read after a failure
     print("back after (s):", back_after)
     assert proc.returncode == 0, err
     s = stats_of(out)
@@ -112,9 +113,10 @@ def test_every_worker_kind_killed_or_terminated_mid_run(recording_20s, tmp_path)
     for name in (*STAGES, "recorder"):
         assert s["stages"][name]["restarts"] == 2, name
     frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
-    assert frames == sorted(set(frames))                         # in order, no duplicate
-    assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 400
-    assert frames[0] == 0 and frames[-1] == 499                  # before the first kill and after the last
+    # nothing lost: what was in flight to a killed worker was sent to it again when it was back
+    assert frames == list(range(500))
+    for name in (*STAGES, "recorder"):
+        assert s["stages"][name]["frames_out"] == 500, (name, s["stages"][name])
     assert not list(out.glob("*.partial"))
 
 
@@ -438,8 +440,11 @@ def test_the_tracking_and_pose_stages_survive_kills_too(recording_20s, tmp_path)
         assert st["restarts"] == 1, name
         assert st["frames_in"] + st["frames_missing"] == 500, (name, st)
         assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], (name, st)
-        assert st["frames_out"] >= 490, (name, st)   # only frames in flight at a kill are lost
+        assert st["frames_out"] == 500, (name, st)   # what was in flight at a kill was sent again
     assert s["restarts"]["monitor"]["count"] == 1
+    for name in ("tracks", "poses"):
+        frames = [json.loads(line)["frame"] for line in open(out / f"{name}.jsonl")]
+        assert frames == list(range(500)), name
     assert not list(out.glob("*.partial"))
 
 

@@ -19,6 +19,14 @@ def _stats(out):
     return json.loads((out / "stats.json").read_text())
 
 
+def _stats_now(out):
+    """stats.json while the run goes on ({} before the first write, or mid-replace)."""
+    try:
+        return _stats(out)
+    except (OSError, ValueError):
+        return {}
+
+
 def test_run_passes_every_frame_through_separate_processes(tiny_recording, tmp_path):
     out = tmp_path / "out"
     r = smartroom("run", "--recording", tiny_recording, "--frames", 50, "--headless", "--out", out)
@@ -138,7 +146,11 @@ def test_ctrl_c_ends_the_stream_and_completes_files(long_recording, tmp_path, sp
     out = tmp_path / "out"
     proc = start_smartroom("run", "--recording", long_recording, "--headless", "--out", out,
                            "--layout", spine_layout)
-    time.sleep(4.0)
+    for _ in range(600):   # until frames flow (start-up takes longer on a loaded machine)
+        if (_stats_now(out).get("workers", {}).get("grabber") or {}).get("frames_out", 0) > 0:
+            break
+        time.sleep(0.1)
+    time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err

@@ -17,8 +17,11 @@ stream from a worker that keeps running is discarded.
 
 Offline (a recording) nothing is dropped: inboxes are deep, outputs block instead of
 dropping, and the source is paced by the stages' acknowledgements, so a run gives the
-same results on an idle and on a loaded machine. Live, inboxes are latest-frame-wins
-and every drop is counted.
+same results on an idle and on a loaded machine. A worker that dies loses what was in
+its inbox; offline, every worker keeps its outputs of the last :data:`REPLAY_FRAMES`
+frames and sends them again when a consumer of them comes back from a crash, and every
+worker skips an input (key, sender, frame) it has handled already, so a restart loses
+no frame. Live, inboxes are latest-frame-wins and every drop is counted.
 
 Everything received is validated (codec, the type's ``validate()``, the frame window
 and epoch of its stream, and the stage's own :meth:`Worker.admit`); what fails is
@@ -41,7 +44,7 @@ from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
-from app.stats import StageLedger
+from app.stats import FrameSet, StageLedger
 
 if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
     from app.config import Layout, WorkerSpec
@@ -54,6 +57,9 @@ END_GRACE_S = 0.1      # quiet time after the upstream left the bus (its data ca
 EOS_CONFIRM_S = 3.0      # an end of stream counts when its sender leaves the bus within this time
 LOSSLESS_DEPTH = 256     # inbox depth per key offline (flow control keeps it far below)
 MAX_KEYS = 64            # distinct keys an inbox holds queues for
+REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent again to a consumer that restarted
+REPLAY_BYTES = 64 << 20  # ... at most this much of them (HD frames)
+REPLAY_DELAY_S = 0.2     # after a restarted consumer's token appears (its subscriptions are declared before)
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
 EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
@@ -142,6 +148,9 @@ class Worker:
     #: a sink whose output must not miss frames (the recorder, exporters): offline, the
     #: source pauses while it is away (restarting) instead of sending frames past it
     KEEPS_RESULTS: ClassVar[bool] = False
+    #: a restarted worker skips the frames its earlier incarnation put out (False: a sink
+    #: that knows per output what it has, the recorder)
+    SKIPS_FINISHED: ClassVar[bool] = True
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
         self.spec = spec
@@ -179,6 +188,13 @@ class Worker:
         self.incarnation = 0                 # restarts of this worker within the run
         self.exit_code = EXIT_ENDED
         self._lock = threading.Lock()
+        self._publish_lock = threading.Lock()
+        self._replay: dict[int, list[tuple[str, bytes]]] = {}   # offline: frame -> its outputs, oldest first
+        self._replay_bytes = 0
+        self._replay_to: set[str] | None = None  # consumers of this worker's outputs
+        self.resent = 0                          # messages sent again to restarted consumers
+        self._inputs: dict[tuple[str, str, int], FrameSet] = {}  # (key, sender, epoch) -> frames handled
+        self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
 
     # -- what subclasses provide ------------------------------------------------------
     @property
@@ -250,9 +266,66 @@ class Worker:
             pub = self._publishers[key] = Publisher(self.session, key, droppable=droppable)
         if not msg.epoch:
             msg.epoch = self._epoch
-        pub.put(msg)
+        payload = msg.to_bytes()
+        with self._publish_lock:
+            pub.put_payload(payload)
+            if self.lossless:
+                self._keep_for_replay(msg.frame, key, payload)
         if counts:
             self.ledger.emitted(msg.frame, msg.stamp)
+
+    # -- outputs sent again to a consumer that restarted (offline) ------------------------
+    def _keep_for_replay(self, frame: int, key: str, payload: bytes) -> None:
+        """Keep the outputs of the last :data:`REPLAY_FRAMES` frames: what was in flight to a
+        consumer when it died (its inbox) is lost with it, and is sent again when it is back."""
+        self._replay.setdefault(frame, []).append((key, payload))
+        self._replay_bytes += len(payload)
+        while len(self._replay) > REPLAY_FRAMES or (self._replay_bytes > REPLAY_BYTES and len(self._replay) > 1):
+            oldest = next(iter(self._replay))
+            self._replay_bytes -= sum(len(p) for _, p in self._replay.pop(oldest))
+
+    def _consumers(self) -> set[str]:
+        """Workers of the layout that take this worker's outputs (and acknowledge or keep them)."""
+        if self._replay_to is None:
+            from workers import upstream_of, worker_class
+            mine = set(self.PRODUCES)
+            self._replay_to = {w.name for w in self.layout.workers
+                               if w.name != self.name and not worker_class(w.kind).DISPLAY
+                               and mine & worker_class(w.kind).consumes(w)
+                               and self.name in upstream_of(self.layout, w)}
+        return self._replay_to
+
+    def _resend(self, name: str) -> None:
+        """``name`` is back after a crash: send the kept outputs again (it skips what its
+        earlier incarnation finished; the other consumers skip them as repeats)."""
+        time.sleep(REPLAY_DELAY_S)
+        with self._publish_lock:
+            items = [(k, p) for frame in list(self._replay) for k, p in self._replay[frame]]
+            for key, payload in items:
+                self._publishers[key].put_payload(payload)
+            frames = sorted(self._replay)
+        self.resent += len(items)
+        if items:
+            self.log.info("%s is back: sent frames %d-%d again (%d messages)", name, frames[0], frames[-1], len(items))
+
+    def _repeated(self, key: str, msg: Message) -> bool:
+        """This input (key, sender, epoch, frame) was handled already: a stage sent it again
+        to a consumer that restarted, and every consumer of that key receives it."""
+        ident = (key, getattr(msg, "worker", "") or "", msg.epoch)   # a restarted source may send a frame again
+        frames = self._inputs.get(ident)
+        if frames is None:
+            frames = self._inputs[ident] = FrameSet()
+        if frames.add(msg.frame) and not self._finished_before(msg):
+            return False
+        self.repeats_skipped += 1
+        return True
+
+    def _finished_before(self, msg: Message) -> bool:
+        """A frame an earlier incarnation of this worker put out (its ledger comes back from
+        the journal): not worked on again. Per-camera inputs are handled one by one (a frame
+        may have been put out for some cameras only)."""
+        return (self.SKIPS_FINISHED and self.incarnation > 0 and getattr(msg, "camera", None) is None
+                and msg.frame in self.ledger.done)
 
     def finished(self, frame: int) -> None:
         """This stage is done with ``frame`` (put out, or given up): an unpaced or
@@ -308,6 +381,11 @@ class Worker:
         return self._source_eos
 
     @classmethod
+    def consumes(cls, spec: WorkerSpec) -> set[str]:
+        """The stages this worker, as configured, takes in."""
+        return set(cls.CONSUMES)
+
+    @classmethod
     def acknowledges(cls, spec: WorkerSpec, layout: Layout) -> bool:
         """Whether this worker, in ``layout``, tells an unpaced or offline source which
         frames it has finished (the source never runs more than a window ahead of it)."""
@@ -327,6 +405,8 @@ class Worker:
             self.inbox.wake()
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
+        for signum in list(getattr(self, "early_signals", ())):   # received while the worker loaded
+            stop(signum, None)
 
     def _watch_launcher(self) -> None:
         """A worker started by a launcher exits when that launcher is gone (no orphans)."""
@@ -348,11 +428,15 @@ class Worker:
         import zenoh
         name = self.keys.last(sample.key_expr)
         with self._lock:
+            back = False
             if sample.kind == zenoh.SampleKind.DELETE:
                 self.alive.discard(name)
                 self._died[name] = time.monotonic()
             else:
+                back = name in self._died and name not in self.alive
                 self.alive.add(name)
+        if back and self.lossless and self._replay and name in self._consumers():
+            threading.Thread(target=self._resend, args=(name,), name=f"resend-{name}", daemon=True).start()
         self.inbox.wake()
 
     def _seed_ended(self) -> None:
@@ -455,6 +539,8 @@ class Worker:
         figures = self.ledger.figures(final=final, expected=frames if known else None, first=first)
         figures["order"] = self.ORDER
         figures["restarts"] = self.incarnation
+        figures["resent"] = self.resent
+        figures["repeats_skipped"] = self.repeats_skipped
         figures["rejected"] = self.rejections.figures()
         figures.update(self.extra_figures())
         return figures
@@ -555,7 +641,7 @@ class Worker:
             if item is not None:
                 key, sample = item
                 msg = self._admit(key, sample)
-                if msg is None:
+                if msg is None or self._repeated(key, msg):
                     continue
                 if msg.epoch != self._epoch:
                     if self._epoch_seen:

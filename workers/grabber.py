@@ -22,9 +22,10 @@ from app.messages import Frame
 from app.recording import Recording
 from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
-from workers.base import Worker
+from workers.base import REPLAY_DELAY_S, Worker
 
 MISSING_WAIT_S = 60.0   # offline: how long a crashed stage is waited for before frames go on without it
+RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # offline: new frames wait this long after a worker is back from a crash
 
 
 class Grabber(Worker):
@@ -156,7 +157,8 @@ class Grabber(Worker):
         cameras = sorted(images)
         for cam, image in images.items():
             self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
-                                                     image=image, epoch=self.epoch, scale=self.scale))
+                                                     image=image, epoch=self.epoch, scale=self.scale), counts=False)
+        self.ledger.emitted(index, stamp)   # sent once every camera's image is: a restart sends it again
         return True
 
     def _filters(self) -> list[str]:
@@ -206,8 +208,10 @@ class Grabber(Worker):
         """Hold frame ``index`` until every acknowledging worker has finished frame
         ``index - window``. A worker that has left the bus (crashed) is waited for while
         the launcher restarts it (at most ``MISSING_WAIT_S``), so no frame goes past it
-        meanwhile; it comes back level with the stream (frames that were in flight to it
-        are lost, and counted)."""
+        meanwhile; the frames that were in flight to it (its inbox, lost with it) are sent
+        to it again by the workers before it when it is back (``Worker._resend``), and the
+        stream waits for it to catch up on them as for any stage (at most ``MISSING_WAIT_S``
+        more, in case its upstream restarted with it and nothing comes again)."""
         if not hasattr(self, "_ack_sub"):
             self._ack_names = self._filters()
             self._keepers = self._keepers_of_results()
@@ -218,6 +222,7 @@ class Grabber(Worker):
             self._acks = {n: index - 1 for n in self._ack_names}
             self._outs = {n: index - 1 for n in self._ack_names}
             self._missing_since: dict[str, float] = {}
+            self._back_since: dict[str, float] = {}
             self._upstream = self._upstream_stages()
         need = index - self.params["window"]
         t0 = time.perf_counter()
@@ -225,14 +230,26 @@ class Grabber(Worker):
         with self._ack_cond:
             while not self.stopping:
                 alive = set(self.alive)
-                if alive - self._was_alive:
-                    # a stage came back after a crash: the frames it missed will not come
-                    # through it, so the stages after it cannot acknowledge them either
-                    for n in self._ack_names:
-                        self._acks[n] = max(self._acks.get(n, -1), index - 1)
-                        self._outs[n] = max(self._outs.get(n, -1), index - 1)
-                self._was_alive = alive
                 now = time.monotonic()
+                for n in alive - self._was_alive:
+                    self._back_since[n] = now   # back after a crash: catching up on what is sent again
+                    # hold new frames until the kept ones were sent again (``REPLAY_DELAY_S``):
+                    # a sink that keeps results acknowledges nothing, and would get them after
+                    # newer frames, or not at all once they had left the workers' replay buffers
+                    self._hold_until = max(getattr(self, "_hold_until", 0.0), now + RESUME_HOLD_S)
+                self._was_alive = alive
+                for n, since in list(self._back_since.items()):
+                    if self._acks.get(n, -1) >= self._required(n, need):
+                        del self._back_since[n]
+                    elif now - since > MISSING_WAIT_S:
+                        # what it missed never came again (its upstream restarted with it):
+                        # go on from here; the frames it lacks are counted as missing
+                        self.log.warning("%s has not caught up %.0f s after its restart; going on without "
+                                         "the frames it missed", n, MISSING_WAIT_S)
+                        del self._back_since[n]
+                        for m in self._ack_names:
+                            self._acks[m] = max(self._acks.get(m, -1), index - 1)
+                            self._outs[m] = max(self._outs.get(m, -1), index - 1)
                 for n in self._ack_names + self._keepers:
                     if n in alive:
                         self._missing_since.pop(n, None)
@@ -241,6 +258,8 @@ class Grabber(Worker):
                 waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < self._required(n, need)]
                 waiting += [n for n in self._ack_names + self._keepers
                             if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
+                if now < getattr(self, "_hold_until", 0.0):
+                    waiting.append("workers sending frames again")
                 if not waiting:
                     break
                 if time.monotonic() > next_note:

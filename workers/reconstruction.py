@@ -185,9 +185,11 @@ class Reconstruction(Worker):
     def _missing(self, entry: dict, now: float) -> set[str]:
         """Cameras of the frame's set still worth waiting for."""
         missing = entry["expected"] - set(entry["masks"])
-        # a camera whose every segmentation worker has left the bus sends nothing more, and
-        # one that has sent a later frame will not send this one (a camera's masks come in order)
-        missing = {c for c in missing if (not self.producers.get(c) or self.producers[c] & self.alive)
+        # a camera whose every segmentation worker has left the bus sends nothing more (offline:
+        # unless it is restarting; it is sent the frames again), and one that has sent a later
+        # frame will not send this one (a camera's masks come in order)
+        missing = {c for c in missing if (not self.producers.get(c) or self.producers[c] & self.alive
+                                          or (self.lossless and not self.producers[c] <= self._ended_upstream))
                    and self.newest_mask.get(c, -1) < entry["frame"]}
         if not self.lossless:   # live: a camera silent for long is not waited for
             timeout = self.params["camera_timeout_s"]

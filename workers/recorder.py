@@ -103,6 +103,11 @@ class Recorder(Worker):
     }
 
     KEEPS_RESULTS = True   # offline, the source waits while it restarts (see Worker.KEEPS_RESULTS)
+    SKIPS_FINISHED = False  # a frame's tracks may be written and its poses not: the files know
+
+    @classmethod
+    def consumes(cls, spec) -> set[str]:
+        return super().consumes(spec) | ({"voxels"} if spec.params.get("voxels") else set())
 
     def subscriptions(self) -> list[str]:
         keys = super().subscriptions()

@@ -25,6 +25,13 @@ def add_arguments(p) -> None:
 
 def main(args) -> int:
     import logging
+    import signal
+
+    # a stop requested while the worker still loads (a Ctrl-C in the first seconds) is
+    # held here and acted on once the worker runs: a source then ends its stream at once
+    early: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _frame: early.append(signum))
 
     from app.config import load_layout
     from app.errors import InputError
@@ -48,6 +55,7 @@ def main(args) -> int:
     configure_logging(spec.name, logging.INFO if args.verbose else logging.WARNING)
     try:
         worker = worker_class(spec.kind)(spec, layout)
+        worker.early_signals = early
         return worker.run()
     except InputError as exc:
         written = False
