@@ -155,6 +155,9 @@ HULL_VARIANTS = (
                  "occlusion_evidence": 1}),
     # occlusion learnt per 8 cm cell and camera instead of per pixel (app/reconstruction/occlusion_cells.py)
     ("cells", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0}),
+    # and without the components no camera needs (app/reconstruction/ghosts.py)
+    ("tight+g", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0, "ghost_share": 0.2}),
+    ("cells+g", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0, "ghost_share": 0.2}),
 )
 
 
@@ -308,6 +311,8 @@ SPEED_VARIANTS = (
     ("mog2 tight/4", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0,
                               "learn_every": 4, "occlusion_evidence": 1}),
     ("mog2 cells", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0}),
+    ("mog2 cells+g", "mog2", {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0,
+                              "ghost_share": 0.2}),
 )
 SPEED_BUDGET_MS = 30.0
 

@@ -77,9 +77,9 @@ class Reconstructor:
         been the one dissenter behind the free space it has seen.
     occlusion_cell : ``"cells"``: the side of a cell (m, default 0.08).
     occlusion_attached : ``"cells"``: keep a voxel one camera missed only in a connected
-        component (26-neighbourhood) that holds a voxel no camera missed (one of a
-        component that passes ``min_top``, with the floor filter), so phantoms of the
-        other views and floor shadows next to a person are not published as pieces.
+        component (26-neighbourhood) that holds a voxel no camera missed (with the floor
+        filter, one at or above ``min_top``), so phantoms of the other views and floor
+        shadows next to a person are not published as pieces.
     occlusion_evidence, occlusion_ratio, occlusion_support, occlusion_margin : the
         occluder test of :class:`~.occlusion.OccluderModel` (``"learnt"``; evidence and
         ratio default to 4 and 0.6) and of :class:`~.occlusion_cells.CellOccluders`
@@ -402,12 +402,9 @@ class Reconstructor:
         indices, misses = indices[keep], misses[keep]
         if self._attached is not None and (misses > self.tolerance).any():
             labels, count = self._attached(indices)
-            agreed = np.flatnonzero(misses <= self.tolerance)
-            if self.floor is not None:      # anchors: agreed voxels of components that pass the floor filter
-                sub = indices[agreed]
-                kept_sub = self.floor(sub)
-                if len(kept_sub) < len(sub):
-                    agreed = agreed[np.isin(self.grid.flat(sub), self.grid.flat(kept_sub))]
+            agreed = misses <= self.tolerance
+            if self.floor is not None:      # anchors: agreed voxels at or above the floor filter's top layer
+                agreed &= indices[:, 2] > self.floor.top_layer
             anchored = np.zeros(count, dtype=np.bool_)
             anchored[labels[agreed]] = True
             attached = anchored[labels]
