@@ -256,9 +256,26 @@ def test_a_phantom_merged_for_a_few_frames_does_not_delay_the_track():
               for f in range(14)]
     first = {}
     for name, z in (("upper body", 0.9), ("centroid", -np.inf)):
-        res = run(frames, candidate_min_z=z)
+        res = run(frames, candidate_min_z=z, confirm_sure_frames=5)   # the count of confirm_frames
         first[name] = min(f for f, (ids, _) in res.items() if len(ids))
         ids, pos = res[13]
         assert len(ids) == 1 and np.hypot(pos[0, 0] - 2.0, pos[0, 1] - 2.0) < 0.1
     assert first["upper body"] == 4, first
     assert first["centroid"] > 4, first
+
+
+def test_the_first_person_in_an_empty_room_is_confirmed_sooner():
+    """A person alone in the room (a sure person for the classifier) is a track after
+    ``confirm_sure_frames`` frames; a second one coming in while the first is tracked
+    waits ``confirm_frames`` (the hull's phantoms come with people)."""
+    frames = []
+    for f in range(20):
+        parts = [(_cylinder(1.5, 2.0), RED, BLUE)]
+        if f >= 8:
+            parts.append((_cylinder(3.5, 2.0), GREEN, GREY))
+        frames.append(frame_of(f, parts))
+    for sure, first, second in ((2, 1, 12), (5, 4, 12)):
+        res = run(frames, confirm_sure_frames=sure)
+        counts = [len(res[f][0]) for f in range(20)]
+        assert counts.index(1) == first, (sure, counts)
+        assert counts.index(2) == second, (sure, counts)

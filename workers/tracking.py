@@ -27,9 +27,10 @@ class Tracking(Worker):
         "particles": 100,          # N_p (particle filter)
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
         "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
+        "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
         "seed": 0,
     }
-    RANGES = {"samples": (10, 5000), "particles": (5, 2000)}
+    RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100)}
 
     def setup(self) -> None:
         from app.tracking.classifier import DEFAULT_TREE, load_tree
@@ -38,7 +39,8 @@ class Tracking(Worker):
         p = self.params
         try:
             params = TrackerParams.from_dict({k: p[k] for k in ("filter", "samples", "particles", "seed")}
-                                             | {"candidate_min_z": float(p["candidate_min_z"])})
+                                             | {"candidate_min_z": float(p["candidate_min_z"]),
+                                                "confirm_sure_frames": int(p["confirm_sure_frames"])})
         except (TypeError, ValueError) as exc:
             raise InputError(f"tracking: {exc}") from None
         name = p["classifier"]

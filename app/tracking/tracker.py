@@ -25,7 +25,11 @@ Each frame (:meth:`MultiTracker.update`):
    lower blobs are phantoms and pieces of the hull, not people); a candidate seen at
    about the same place for ``confirm_frames`` frames becomes a track with a new id (a
    component's candidate is placed by its upper body, ``candidate_min_z``, so a phantom
-   merged into it for a frame or two does not move it and restart the count);
+   merged into it for a frame or two does not move it and restart the count); while the
+   room has no track, a candidate the classifier calls a person with probability at
+   least ``sure_probability`` in each of ``confirm_sure_frames`` frames is confirmed
+   then (the first person in is posed 3 frames sooner; with tracks in the room, the
+   hull's phantoms near people are "sure" persons too, so the count stays);
 4. re-identification (beyond the thesis, ``reid_frames``; 0 turns it off): a track
    confirmed where a track ended for a no-person verdict a moment ago, and, with colour,
    dressed alike, takes the ended track's id, so a person whose track was dropped for
@@ -83,6 +87,9 @@ class TrackerParams:
     new_distance_merged: float = 0.6   # the same for people merged into a tracked component
     claim_radius: float = 0.45     # voxels this close to a target (xy) are its own
     confirm_frames: int = 5
+    confirm_sure_frames: int = 2   # ... or this many when every sighting was a sure person in an empty room
+                                   # (beyond the thesis; >= confirm_frames: never sooner)
+    sure_probability: float = 0.97  # the classifier's person probability of a sure sighting in an empty room
     new_min_z: float = 0.6         # no new track whose candidate's centroid is lower (m; -inf: any)
     candidate_min_z: float = 0.9   # a new component's candidate placed (xy) by its voxels this high (m; -inf: all)
     duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
@@ -133,7 +140,7 @@ class MultiTracker:
         self.classifier = classifier
         self.rng = np.random.default_rng(self.p.seed)
         self.tracks: list[_Track] = []
-        self.candidates: list[tuple[np.ndarray, int]] = []
+        self.candidates: list[tuple[np.ndarray, int, int]] = []   # (centre, sightings, sure sightings)
         self.next_id = 1
         self.deleted = 0
         self.ended: list[tuple] = []   # (frame, id, position, reference histogram) of recently ended tracks
@@ -310,7 +317,9 @@ class MultiTracker:
                 centre = self._candidate_centre(scene, c)
                 if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance ** 2).any():
                     continue
-                found.append(centre)
+                # sure only while the room has no track (the first person in): phantoms of
+                # the hull come with people, and crowd6's are "sure" persons too
+                found.append((centre, not len(targets_xy) and self._sure(scene.features[c:c + 1])))
                 continue
             # the free pieces of a tracked component that look like a person
             runs = free_runs[free_labels == c]
@@ -329,24 +338,25 @@ class MultiTracker:
                 if len(targets_xy) and \
                         (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance_merged ** 2).any():
                     continue
-                found.append(centre)
+                found.append((centre, False))   # a piece of a tracked blob is never sure
         # confirmation: a candidate seen again near where it was the frame before
         nxt = []
-        for c in found:
+        for c, sure in found:
             if c[2] < p.new_min_z:   # a blob this low is a phantom or a piece, not a body
                 continue
-            count = 1
-            for old, k in self.candidates:
+            count, sure_count = 1, int(sure)
+            for old, k, ks in self.candidates:
                 if ((old[:2] - c[:2]) ** 2).sum() < p.new_distance ** 2:
                     count = max(count, k + 1)
-            if count >= p.confirm_frames:
+                    sure_count = max(sure_count, ks + 1) if sure else 0
+            if count >= p.confirm_frames or sure_count >= p.confirm_sure_frames:
                 target = self._make(self._start(c), scene)
                 tid = self._reidentify(scene, target)
                 self.tracks.append(_Track(tid, target))
                 self.events.append((scene.frame, "new", tid, "" if tid == self.next_id - 1 else "re-identified",
                                     c.copy()))
             else:
-                nxt.append((c, count))
+                nxt.append((c, count, sure_count))
         self.candidates = nxt
 
     def _component_centre(self, scene: SceneFrame, c: int) -> np.ndarray:
@@ -359,6 +369,14 @@ class MultiTracker:
             columns.component_sums(scene.indices, scene.labels, scene.origin, scene.voxel_size, sums, counts)
             self._centres = sums / np.maximum(counts, 1)[:, None]
         return self._centres[c].copy()
+
+    def _sure(self, features: np.ndarray) -> bool:
+        """Beyond the thesis (``confirm_sure_frames``): the classifier gives the sighting's
+        features a person probability of at least ``sure_probability``."""
+        if self.classifier is None or self.p.confirm_sure_frames >= self.p.confirm_frames:
+            return False
+        x = np.asarray(features, dtype=np.float64)[:, :len(CLASSIFIER_FEATURES)]
+        return bool(self.classifier.probability(x)[0] >= self.p.sure_probability)
 
     def _candidate_centre(self, scene: SceneFrame, c: int) -> np.ndarray:
         """Where a component no target holds puts its candidate: beyond the thesis
