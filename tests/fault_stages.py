@@ -39,3 +39,19 @@ class SlowStartSegmentation(Segmentation):
             self._slept = True
             time.sleep(self.params["first_delay_s"])
         super().handle(key, msg)
+
+
+class SlowSetupStage(Worker):
+    """Consumes voxels; its setup takes ``setup_s`` (tables and kernels of a heavy stage)."""
+
+    KIND = "slowsetup"
+    ORDER = 3
+    CONSUMES = ("voxels",)
+    PRODUCES = ("slowsetup",)
+    DEFAULTS = {"setup_s": 5.0}
+
+    def setup(self):
+        time.sleep(self.params["setup_s"])
+
+    def handle(self, key, msg):
+        self.publish(self.keys.stage("slowsetup"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))

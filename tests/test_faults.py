@@ -223,6 +223,27 @@ def _running(pid) -> bool:
     return state != "Z"
 
 
+def test_ctrl_c_while_a_stage_still_loads_ends_the_run(long_recording, tmp_path):
+    """Ctrl-C in the first seconds: the grabber ends its stream before a slow stage has
+    loaded; that stage takes the launcher's repeated end of stream (its own went by before
+    it listened), so the run ends complete instead of waiting 15 s and giving up."""
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", extra_workers=[
+        {"name": "heavy", "kind": "tests.fault_stages:SlowSetupStage", "params": {"setup_s": 6.0}}])
+    proc = start_smartroom("run", "--recording", long_recording, "--headless", "--layout", layout, "--out", out)
+    try:
+        assert wait_for(lambda: worker_pid(out, "grabber") or _any_pid(out, "grabber"), timeout=60)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stopped_by_user"] is True, s.get("reasons")
+    assert s["workers"]["heavy"]["ended"] is True
+
+
 def test_killing_the_launcher_leaves_no_worker_alive(long_recording, tmp_path):
     out = tmp_path / "out"
     layout = write_layout(tmp_path / "layout.yaml")

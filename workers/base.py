@@ -174,6 +174,7 @@ class Worker:
         self._upstream_eos: dict[str, tuple[EndOfStream, float]] = {}
         self._ended_upstream: set[str] = set()
         self._source_eos: EndOfStream | None = None
+        self._eos_since = 0.0                 # when this worker began to listen for ends
         self._subs = []
         self._token = None
         self._last_stats = 0.0
@@ -501,7 +502,9 @@ class Worker:
                     self.rejections.add(self.keys.relative(self.keys.eos(name)), "end of stream from a running worker")
                 return False
             died = self._died.get(name, arrived)
-            if abs(died - arrived) > EOS_CONFIRM_S:   # it crashed long after a forged end of stream
+            # it crashed long after a forged end of stream; unless it left before this worker
+            # listened for ends (its own end went by, and this is the launcher saying it again)
+            if abs(died - arrived) > EOS_CONFIRM_S and died >= self._eos_since:
                 del self._upstream_eos[name]
                 return False
         self._ended_upstream.add(name)
@@ -626,8 +629,8 @@ class Worker:
         """Every upstream worker has ended and nothing came for ``END_GRACE_S`` since:
         data and end of stream travel on different keys, so the last data may trail."""
         now = time.monotonic()
-        if (not self._wait_for or self.inbox.pending()
-                or not all(self._upstream_ended(n, now) for n in self._wait_for)):
+        ended = [self._upstream_ended(n, now) for n in sorted(self._wait_for)]   # each confirmed as it comes
+        if not self._wait_for or self.inbox.pending() or not all(ended):
             self._quiet_since = None
             return False
         if self._quiet_since is None:
@@ -691,6 +694,7 @@ class Worker:
             for key in self.subscriptions():
                 self._subs.append(self.session.declare_subscriber(key, self._on_sample))
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
+            self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             if "stats" in self.CONSUMES:
                 self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
             # an unpaced or offline source sends frames as fast as the stages acknowledge them
