@@ -53,8 +53,7 @@ def hulls(clip):
 #: the tight hull of issue 8: k = 0, footprint test, learnt occluders below 1 m
 TIGHT = {"tolerance": 0, "footprint": 0.34, "occlusion": "learnt", "occlusion_top": 1.0}
 #: occlusion learnt per 8 cm cell and camera (app/reconstruction/occlusion_cells.py)
-CELLS = {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0, "occlusion_evidence": 2,
-         "occlusion_ratio": 0.5}
+CELLS = {"tolerance": 0, "footprint": 0.34, "occlusion": "cells", "occlusion_top": 1.0}
 
 
 def test_hull_volume_recall_and_pieces(hulls):
@@ -147,8 +146,11 @@ def test_cell_occlusion_hull(hulls):
     assert cells["volume_ratio"] < 0.7 * k1["volume_ratio"]
     assert cells["largest_share_min"] >= 0.9 and cells["frames_in_pieces"] == 0.0
     # dropping the components no camera needs (ghosts) removes volume, not body
-    g = hulls["cells_g"]
+    g, tight = hulls["cells_g"], hulls["tight"]
     assert g["volume_ratio"] < cells["volume_ratio"] and g["recall"] >= cells["recall"] - 0.002
+    # and it keeps as much of the body as the per-pixel tight hull at less volume
+    # (measured here: tight 0.949 / 3.88x, cells 0.953 / 3.64x, cells + ghost filter 0.953 / 3.28x)
+    assert g["recall"] >= tight["recall"] - 0.002 and g["volume_ratio"] < 0.9 * tight["volume_ratio"]
 
 
 def test_cell_occlusion_selection_is_exact(clip):

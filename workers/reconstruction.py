@@ -54,8 +54,8 @@ class Reconstruction(Worker):
                                      # or cells: occlusion learnt per voxel cell and camera (occlusion_cells.py)
         "learn_every": 1,            # learnt occluders: learn from every n-th frame (0: stop learning)
         "occlusion_evidence": 0,     # learnt occluders: frames of evidence that make a pixel (cell) an occluder;
-                                     # 0: the model's default (learnt 4, cells 2)
-        "occlusion_ratio": 0.0,      # evidence / (evidence + seen) needed; 0: the model's default (learnt 0.6, cells 0.5)
+                                     # 0: the model's default (learnt 4, cells 1)
+        "occlusion_ratio": 0.0,      # evidence / (evidence + seen) needed; 0: the model's default (learnt 0.6, cells 0.4)
         "occlusion_cell": 0.08,      # cells: side of a cell (m)
         "occlusion_top": 0.0,        # learnt occluders: only below this height (m; furniture is low); 0 = no limit
         "footprint": 0.0,            # silhouette-edge test: accept a voxel when this fraction of the 3x3 pixels

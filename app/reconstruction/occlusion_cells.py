@@ -23,8 +23,9 @@ has seldom seen a person itself. Per cell ``X`` and camera ``c`` the model count
     ``seen(X, c)``: frames with a voxel of ``X`` on which all cameras agree
         (foreground) and ``c`` calls foreground: ``c`` sees people in ``X``;
 
-and ``c`` may miss a voxel of ``X`` once ``evidence >= min_evidence`` and
-``evidence >= ratio * (evidence + seen)``. Learning is causal (a frame is carved with
+and ``c`` may miss a voxel of ``X`` once ``evidence >= min_evidence`` (default 1)
+and ``evidence >= ratio * (evidence + seen)`` (default 0.4; 2 and 0.5, or cells of 4
+or 12 cm, move along the same recall-volume curve, docs/benchmarks.md). Learning is causal (a frame is carved with
 what the earlier frames taught, then teaches), deterministic for a recording, and
 bounded (two counters per cell and camera: at 8 cm, 5 cameras and a 5 x 4 x 2.5 m room
 about 0.5 M of each, ~4 MB).
@@ -35,6 +36,12 @@ cameras agree on. Nothing static hides anything in front of that depth, so a dis
 of ``c`` at or in front of it is a phantom of the other views, no evidence. Without
 this test the phantoms' evidence dominates (measured offline on meeting3 at 4 cm with
 the true silhouettes: 0.94 of the body at 4.2-4.6x against 0.94 / 2.6x with it).
+
+Against the per-pixel occluders (the ``tight`` hull) on meeting3 and crowd6 at 2 and
+4 cm, with the segmentation's masks and with the true silhouettes, it keeps as much
+of the body or more at 0.1-0.35x less volume; with the ghost filter
+(:mod:`.ghosts`) meeting3 at 2 cm with the true silhouettes keeps 0.968 of the body at
+2.48x (docs/benchmarks.md, "Hull tightness").
 
 Implementation: the frame is carved at tolerance ``k + 1`` (the ordinary coarse-to-
 fine carving, :mod:`.carving`), then :func:`select_and_learn` visits the carved voxels
@@ -163,7 +170,7 @@ class CellOccluders:
     docstring). ``dims`` the voxel grid, ``n_cameras``, ``mask_total`` the pixels of
     the concatenated masks (:class:`~.projection.ProjectionTable`)."""
 
-    def __init__(self, dims, cell: int, n_cameras: int, mask_total: int, min_evidence: int = 2, ratio: float = 0.5,
+    def __init__(self, dims, cell: int, n_cameras: int, mask_total: int, min_evidence: int = 1, ratio: float = 0.4,
                  support: int = 3):
         if cell < 1 or min_evidence < 1 or not 0.0 < ratio <= 1.0 or support < 1:
             raise ValueError("occlusion cells: cell >= 1 voxel, min_evidence >= 1, 0 < ratio <= 1, support >= 1")

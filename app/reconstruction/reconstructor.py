@@ -83,7 +83,7 @@ class Reconstructor:
     occlusion_evidence, occlusion_ratio, occlusion_support, occlusion_margin : the
         occluder test of :class:`~.occlusion.OccluderModel` (``"learnt"``; evidence and
         ratio default to 4 and 0.6) and of :class:`~.occlusion_cells.CellOccluders`
-        (``"cells"``; default 2 and 0.5, the best of those measured, docs/benchmarks.md).
+        (``"cells"``; default 1 and 0.4, the best of those measured, docs/benchmarks.md).
     learn_every : learn occluders from every n-th reconstructed frame (0: never, the
         masks stay as they are).
     abstain_support : a voxel on which a camera abstains behind an occluder needs
@@ -198,9 +198,9 @@ class Reconstructor:
         self.cell_occluders = None
         cells = occlusion == "cells"
         if occlusion_evidence is None:
-            occlusion_evidence = 2 if cells else 4
+            occlusion_evidence = 1 if cells else 4
         if occlusion_ratio is None:
-            occlusion_ratio = 0.5 if cells else 0.6
+            occlusion_ratio = 0.4 if cells else 0.6
         # carving tolerance: "cells" carves at k + 1 and then selects (occlusion_cells)
         self._carve_tolerance = self.tolerance + (1 if occlusion == "cells" else 0)
         if occlusion == "cells":
