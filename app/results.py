@@ -32,24 +32,12 @@ class VoxelWriter:
         self.frames = FrameSet()
         self.ordered, self.last_frame = True, -1
         keep = 0
-        if self.tmp.exists():
-            with open(self.tmp, "rb") as fh:
-                while True:
-                    head = fh.read(_LEN.size)
-                    if len(head) < _LEN.size:
-                        break
-                    (size,) = _LEN.unpack(head)
-                    payload = fh.read(size)
-                    if len(payload) < size:
-                        break
-                    try:
-                        frame = peek_frame(payload)
-                    except MessageError:
-                        break
-                    self.frames.add(frame)
-                    self.ordered = self.ordered and frame > self.last_frame
-                    self.last_frame = max(self.last_frame, frame)
-                    keep += _LEN.size + size
+        if self.tmp.exists():   # an earlier incarnation's records: keep every complete one
+            for frame, offset, size in _records(self.tmp):
+                self.frames.add(frame)
+                self.ordered = self.ordered and frame > self.last_frame
+                self.last_frame = max(self.last_frame, frame)
+                keep = offset + size
             os.truncate(self.tmp, keep)
         self.fh = open(self.tmp, "ab", buffering=0)
         self.size = self.fh.tell()   # bytes of complete records
@@ -85,20 +73,32 @@ class VoxelWriter:
 
     def _sort(self) -> None:
         """Rewrite the records in frame order, one record in memory at a time."""
-        index = []
-        with open(self.tmp, "rb") as fh:
-            while True:
-                head = fh.read(_LEN.size)
-                if len(head) < _LEN.size:
-                    break
-                (size,) = _LEN.unpack(head)
-                index.append((peek_frame(fh.read(size)), fh.tell() - size, size))
+        index = sorted(_records(self.tmp))
         sorted_tmp = self.tmp.with_name(self.tmp.name + ".sorted")
         with open(self.tmp, "rb") as src, open(sorted_tmp, "wb") as dst:
-            for _, offset, size in sorted(index):
+            for _, offset, size in index:
                 src.seek(offset)
                 dst.write(_LEN.pack(size) + src.read(size))
         os.replace(sorted_tmp, self.tmp)
+
+
+def _records(path):
+    """``(frame, payload offset, payload size)`` of each complete record, up to the first
+    one cut short or unreadable (a crash while writing)."""
+    with open(path, "rb") as fh:
+        while True:
+            head = fh.read(_LEN.size)
+            if len(head) < _LEN.size:
+                return
+            (size,) = _LEN.unpack(head)
+            payload = fh.read(size)
+            if len(payload) < size:
+                return
+            try:
+                frame = peek_frame(payload)
+            except MessageError:
+                return
+            yield frame, fh.tell() - size, size
 
 
 def iter_voxels(path):
