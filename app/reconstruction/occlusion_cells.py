@@ -56,7 +56,7 @@ from numba import njit
 
 from .carving import BG_VOTE, FG_VOTE, MAX_CAMERAS, VOTE_SHIFT
 
-__all__ = ["CellOccluders", "select_and_learn"]
+__all__ = ["CellOccluders", "select_and_learn", "MISSES_SHIFT"]
 
 
 @njit(cache=True, nogil=True)
@@ -74,51 +74,50 @@ def _position(i, j, k, levels, nby, nbz):
     return (brick << (3 * levels)) + code
 
 
+#: bit of a key above which :func:`select_and_learn` stores the voxel's misses
+MISSES_SHIFT = 56
+
+
 @njit(cache=True, nogil=True)
-def select_and_learn(indices, levels, brick_dims, lut, votes, depth_coef, tolerance, support, k_top, cell, cell_dims,
-                     occluded, learn, free_depth, seen_flag, evidence_flag, keep, misses):
+def select_and_learn(keys, shift_i, shift_j, levels, brick_dims, lut, votes, depth_coef, tolerance, support, k_top,
+                     cell, cell_dims, occluded, learn, free_depth, seen_flag, evidence_flag):
     """Select the voxels of a hull carved at ``tolerance + 1`` and gather one frame's
     evidence (module docstring).
 
-    ``indices`` (N, 3) the carved voxels; ``lut``/``votes`` the carving's projection
-    table and vote buffer (:data:`.carving.BG_VOTE` background, ``FG_VOTE``
-    foreground, 0 unseen / no mask); ``depth_coef`` (C, 4): depth of voxel (i, j, k)
-    in camera ``c`` is ``depth_coef[c] . (i, j, k, 1)``; ``cell`` voxels per cell
-    side, ``cell_dims`` the cell grid; ``occluded`` (n_cells * C) uint8 the learnt
-    model. With ``learn``: ``free_depth`` (per pixel of the concatenated masks) is
-    raised by the agreed voxels, and ``seen_flag`` / ``evidence_flag`` (n_cells * C)
-    are set for this frame. Writes ``keep`` (N,) bool and ``misses`` (N,) uint8 (the
-    cameras calling each voxel background). Returns the number kept."""
+    ``keys`` the carved voxels' sort keys ``(i << shift_i) | (j << shift_j) | k`` in
+    the carving's (brick) order, so the table rows are read nearly in sequence;
+    ``lut``/``votes`` the carving's projection table and vote buffer
+    (:data:`.carving.BG_VOTE` background, ``FG_VOTE`` foreground, 0 unseen / no mask);
+    ``depth_coef`` (C, 4): depth of voxel (i, j, k) in camera ``c`` is
+    ``depth_coef[c] . (i, j, k, 1)``; ``cell`` voxels per cell side, ``cell_dims`` the
+    cell grid; ``occluded`` (n_cells * C) uint8 the learnt model. With ``learn``:
+    ``free_depth`` (per pixel of the concatenated masks) is raised by the agreed
+    voxels, and ``seen_flag`` / ``evidence_flag`` (n_cells * C) are set for this frame.
+    The kept keys are moved to the front of ``keys``, each with its misses (the
+    cameras calling it background) in the bits from :data:`MISSES_SHIFT` up; returns
+    how many."""
     n_cams = lut.shape[1]
     nby = np.int64(brick_dims[1])
     nbz = np.int64(brick_dims[2])
     cy = np.int64(cell_dims[1])
     cz = np.int64(cell_dims[2])
-    kept = 0
-    # pass 1: keep / drop; free space and "seen" from the voxels every camera agrees on
-    for n in range(indices.shape[0]):
-        i = np.int64(indices[n, 0])
-        j = np.int64(indices[n, 1])
-        k = np.int64(indices[n, 2])
-        p = _position(i, j, k, levels, nby, nbz)
-        total = 0
-        for c in range(n_cams):
-            total += votes[lut[p, c]]
-        nbg = total >> VOTE_SHIFT
-        nfg = total & MAX_CAMERAS
-        misses[n] = nbg
-        base = (((i // cell) * cy + (j // cell)) * cz + (k // cell)) * n_cams
-        ok = nbg <= tolerance
-        if not ok and nbg == tolerance + 1 and nfg >= support and k < k_top:
-            ok = True
+    mask_j = (np.int64(1) << (shift_i - shift_j)) - 1
+    mask_k = (np.int64(1) << shift_j) - 1
+    if learn:
+        # free space and "seen" from the voxels every camera agrees on, before any evidence
+        for n in range(keys.shape[0]):
+            key = keys[n]
+            i = key >> shift_i
+            j = (key >> shift_j) & mask_j
+            k = key & mask_k
+            p = _position(i, j, k, levels, nby, nbz)
+            nbg = 0
             for c in range(n_cams):
-                if votes[lut[p, c]] == BG_VOTE and occluded[base + c] == 0:
-                    ok = False
-                    break
-        keep[n] = ok
-        if ok:
-            kept += 1
-        if learn and nbg == 0:
+                if votes[lut[p, c]] == BG_VOTE:
+                    nbg += 1
+            if nbg:
+                continue
+            base = (((i // cell) * cy + (j // cell)) * cz + (k // cell)) * n_cams
             for c in range(n_cams):
                 q = lut[p, c]
                 if votes[q] == FG_VOTE:
@@ -126,29 +125,34 @@ def select_and_learn(indices, levels, brick_dims, lut, votes, depth_coef, tolera
                     z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
                     if z > free_depth[q]:
                         free_depth[q] = z
-    if not learn:
-        return kept
-    # pass 2: evidence, behind the free space this frame included
-    for n in range(indices.shape[0]):
-        k = np.int64(indices[n, 2])
-        if misses[n] != tolerance + 1 or k >= k_top:
-            continue
-        i = np.int64(indices[n, 0])
-        j = np.int64(indices[n, 1])
+    kept = 0
+    for n in range(keys.shape[0]):
+        key = keys[n]
+        i = key >> shift_i
+        j = (key >> shift_j) & mask_j
+        k = key & mask_k
         p = _position(i, j, k, levels, nby, nbz)
-        nfg = 0
+        total = 0
         for c in range(n_cams):
-            if votes[lut[p, c]] == FG_VOTE:
-                nfg += 1
-        if nfg < support:
-            continue
-        base = (((i // cell) * cy + (j // cell)) * cz + (k // cell)) * n_cams
-        for c in range(n_cams):
-            q = lut[p, c]
-            if votes[q] == BG_VOTE:
-                z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
-                if z > free_depth[q]:
-                    evidence_flag[base + c] = 1
+            total += votes[lut[p, c]]
+        nbg = total >> VOTE_SHIFT
+        nfg = total & MAX_CAMERAS
+        ok = nbg <= tolerance
+        if not ok and nbg == tolerance + 1 and nfg >= support and k < k_top:
+            base = (((i // cell) * cy + (j // cell)) * cz + (k // cell)) * n_cams
+            ok = True
+            for c in range(n_cams):
+                q = lut[p, c]
+                if votes[q] == BG_VOTE:
+                    if learn:   # evidence: behind the free space this frame included
+                        z = depth_coef[c, 0] * i + depth_coef[c, 1] * j + depth_coef[c, 2] * k + depth_coef[c, 3]
+                        if z > free_depth[q]:
+                            evidence_flag[base + c] = 1
+                    if occluded[base + c] == 0:
+                        ok = False
+        if ok:
+            keys[kept] = key | (nbg << MISSES_SHIFT)
+            kept += 1
     return kept
 
 

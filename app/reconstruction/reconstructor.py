@@ -27,7 +27,7 @@ from .ghosts import ExplainedFilter
 from .fused import chi2_thresholds, classify_cells_fused
 from .grid import BrickLayout, VoxelGrid, keys_to_indices, radix_sort
 from .occlusion import OccluderModel
-from .occlusion_cells import CellOccluders, select_and_learn
+from .occlusion_cells import MISSES_SHIFT, CellOccluders, select_and_learn
 from .projection import ProjectionTable
 
 __all__ = ["Reconstructor", "METHODS", "OCCLUSIONS"]
@@ -210,8 +210,6 @@ class Reconstructor:
             g = self.grid
             self._depth_coef = np.array([[*(c.R[2] * g.voxel_size), float(c.R[2] @ (g.origin + 0.5 * g.voxel_size))
                                           + float(c.t[2])] for c in self.mask_cameras], dtype=np.float64)
-            self._keep = np.zeros(0, dtype=np.bool_)
-            self._sel_misses = np.zeros(0, dtype=np.uint8)
             self._attached = Labeller(self.grid.dims) if occlusion_attached else None
         if occlusion == "learnt":
             self.occluders = OccluderModel(t.mask_total, occlusion_evidence, occlusion_ratio, occlusion_support,
@@ -369,9 +367,10 @@ class Reconstructor:
     def carve(self, masks: Mapping) -> np.ndarray:
         """Occupied voxels (N, 3) uint16, sorted by flat id, from ``{camera: mask or None}``."""
         cams = self._upload_masks(masks)
-        indices = self._indices(self._carve_keys(cams))
         if self.cell_occluders is not None:
-            indices, _ = self._select_cells(indices, cams)
+            indices, _ = self._select_cells(self._carve_keys(cams), cams)
+        else:
+            indices = self._indices(self._carve_keys(cams))
         self._after_carving(cams)
         if self.floor is not None:
             indices = self.floor(indices)
@@ -379,27 +378,26 @@ class Reconstructor:
             indices = self.explained(indices, self.layout, self.table.lut, self._votes)
         return self.ghosts(indices) if self.ghosts is not None else indices
 
-    def _select_cells(self, indices: np.ndarray, cams: np.ndarray):
-        """``occlusion="cells"``: the voxels of the hull carved at ``k + 1`` that are
-        kept (at most ``k`` misses, or ``k + 1`` all behind learnt occlusion), their
-        misses, and this frame's evidence (:mod:`.occlusion_cells`)."""
+    def _select_cells(self, keys: np.ndarray, cams: np.ndarray):
+        """``occlusion="cells"``: from the keys of the hull carved at ``k + 1`` (unsorted),
+        the voxels that are kept (at most ``k`` misses, or ``k + 1`` all behind learnt
+        occlusion; sorted), their misses, and this frame's evidence
+        (:mod:`.occlusion_cells`)."""
         occ, lay = self.cell_occluders, self.layout
-        n = len(indices)
-        if len(self._keep) < n:
-            self._keep = np.zeros(max(n, 2 * len(self._keep)), dtype=np.bool_)
-            self._sel_misses = np.zeros(len(self._keep), dtype=np.uint8)
-        keep, misses = self._keep[:n], self._sel_misses[:n]
         learn = bool(self.learn_every) and (self.frames_carved + 1) % self.learn_every == 0 \
             and len(cams) >= self.min_views
-        select_and_learn(indices, np.int64(lay.levels), lay.brick_dims_arr, self.table.lut, self._votes,
-                         self._depth_coef, np.int64(self.tolerance), np.int64(occ.support), np.int64(self._k_top),
-                         np.int64(occ.cell), occ.cell_dims, occ.occluded, learn, occ.free_depth, occ.seen_flag,
-                         occ.evidence_flag, keep, misses)
+        n = select_and_learn(keys, np.int64(lay.key_shift_i), np.int64(lay.key_shift_j), np.int64(lay.levels),
+                             lay.brick_dims_arr, self.table.lut, self._votes, self._depth_coef,
+                             np.int64(self.tolerance), np.int64(occ.support), np.int64(self._k_top), np.int64(occ.cell),
+                             occ.cell_dims, occ.occluded, learn, occ.free_depth, occ.seen_flag, occ.evidence_flag)
         if learn:
             occ.fold()
-        if keep.all():
-            return indices, misses.copy()
-        indices, misses = indices[keep], misses[keep]
+        keys = keys[:n]
+        radix_sort(keys, lay.key_bits, self._scratch)     # by the low key bits: the misses ride along
+        misses = (keys >> MISSES_SHIFT).astype(np.uint8)
+        keys &= (np.int64(1) << MISSES_SHIFT) - 1
+        indices = np.empty((n, 3), dtype=np.uint16)
+        keys_to_indices(keys, lay.key_shift_i, lay.key_shift_j, indices)
         if self._attached is not None and (misses > self.tolerance).any():
             labels, count = self._attached(indices)
             agreed = misses <= self.tolerance
@@ -478,13 +476,13 @@ class Reconstructor:
             raise ValueError(f"masks: unknown camera {sorted(unknown)[0]!r} (have {', '.join(self.names)})")
         t0 = time.perf_counter()
         cams = self._upload_masks(masks)
-        indices = self._indices(self._carve_keys(cams))
-        tm = time.perf_counter()
         if self.cell_occluders is not None:     # selection and misses in one visit
-            indices, misses = self._select_cells(indices, cams)
+            indices, misses = self._select_cells(self._carve_keys(cams), cams)
             misses = misses if self.count_misses else None
             tm = 0.0
         else:
+            indices = self._indices(self._carve_keys(cams))
+            tm = time.perf_counter()
             misses = self._count_misses(indices) if self.count_misses else None   # before occluders learn
             tm = time.perf_counter() - tm
         self._after_carving(cams)
