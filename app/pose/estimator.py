@@ -178,8 +178,8 @@ class PersonPose:
             velocity = (position - self.last_position) * 25.0
             # smoothed for the heading prior (a tracker's centroid jitters by a centimetre a frame)
             self.velocity = velocity if self.velocity is None else 0.7 * self.velocity + 0.3 * velocity
-        if len(centres) >= 30:
-            self.tops.append(blob_top(centres, s.stature == "axis"))
+        if len(centres) >= 30 and (self.filter is None or self.frames < s.height_frames):
+            self.tops.append(blob_top(centres, s.stature == "axis"))   # read while the stature is settled only
         if self.filter is None:
             if len(self.tops) < 1:
                 return None
