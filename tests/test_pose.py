@@ -268,3 +268,32 @@ def test_gamma_budget_shares_the_particles_among_the_people_of_a_frame():
     print("meeting3 4 cm, three people, MPJPE mm: gamma 50", 1e3 * errors[0], "budget 75 (25 each)", 1e3 * errors[75])
     assert errors[75] < 0.1
     assert errors[75] < errors[0] + 0.015
+
+
+def test_outer_surface_matches_a_dense_flood_fill_of_the_whole_box():
+    """The outer surface's fill (only the cells between a column's lowest and highest
+    voxel are visited) against a dense reference: scipy's labelling of the empty cells of
+    the whole box, exterior = the components touching the box's border. Random porous
+    blobs (cavities, tunnels, overhangs), some touching the box's border."""
+    from scipy import ndimage
+
+    from app.pose.observation import outer_surface_flags
+
+    rng = np.random.default_rng(7)
+    six = ndimage.generate_binary_structure(3, 1)
+    for t in range(40):
+        shape = tuple(int(v) for v in rng.integers(6, 22, size=3))
+        occ = (rng.random(shape) < rng.uniform(0.3, 0.75)).astype(np.uint8)
+        if t % 3:   # a margin of empty cells (the observation's box) on some sides only
+            occ[:2], occ[:, -2:] = 0, 0
+        idx = np.argwhere(occ).astype(np.int64)
+        labels, _ = ndimage.label(occ == 0, structure=six)
+        border = np.zeros(shape, bool)
+        border[[0, -1]], border[:, [0, -1]], border[:, :, [0, -1]] = True, True, True
+        outside = np.isin(labels, np.unique(labels[border & (occ == 0)])) & (occ == 0)
+        pad = np.pad(outside, 1, constant_values=True)
+        expected = np.zeros(len(idx), bool)
+        for d in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+            n = idx + 1 + np.array(d)
+            expected |= pad[n[:, 0], n[:, 1], n[:, 2]]
+        assert np.array_equal(outer_surface_flags(idx, occ), expected), t
