@@ -52,3 +52,47 @@ def test_stance_prior_keeps_the_footless_leg_under_the_hip(footless_clip):
         print(f"stance {stance}: right ankle within 100 mm in {within[stance]:.2f} of the frames, "
               f"median {1e3 * np.median(E[:, J['r_ankle']]):.0f} mm, MPJPE {1e3 * E.mean():.0f} mm")
     assert within[0.03] >= 0.9, within
+
+
+def _numpy_torso_frames(states, height):
+    """The arms' torso frames as numpy operations (the earlier code of detections.py)."""
+    from app.pose.detections import _TORSO_JOINTS, _TORSO_NEED
+    from app.pose.model import joints_subset
+    j = joints_subset(states, height, _TORSO_JOINTS, _TORSO_NEED)
+    ls, rs = j[:, 0], j[:, 1]
+    up = j[:, 2] - j[:, 3]
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    left = ls - rs
+    left -= np.sum(left * up, axis=1, keepdims=True) * up
+    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
+    return {"l": ls, "r": rs}, np.stack([np.cross(left, up), left, up], axis=2)
+
+
+def test_arm_proposal_kernels_give_numpys_numbers():
+    """The IAPF arm proposals' loops (torso frames, the wrist target's look-up cell and
+    the table's range for it) against the numpy operations they replace, bit for bit, on
+    random states inside the joint limits and random hand candidates."""
+    from app.pose.annealing import propagate
+    from app.pose.detections import _ik_cells, _ik_keys, _torso_frames, arm_table
+    from app.pose.filters import SIGMA0
+    from app.pose.model import LIMITS_HI, LIMITS_LO
+
+    rng = np.random.default_rng(3)
+    states = propagate(np.tile(neutral_state(H, (1.0, 2.0, None)), (3000, 1)), 3 * SIGMA0, LIMITS_LO, LIMITS_HI, rng)
+    shoulders, frames = _torso_frames(states, H)
+    ref_shoulders, ref_frames = _numpy_torso_frames(states, H)
+    assert np.array_equal(frames, ref_frames)
+    for side in "lr":
+        assert np.array_equal(shoulders[side], ref_shoulders[side])
+        keys = arm_table(side)[2]
+        use = np.flatnonzero(rng.random(len(states)) < 0.5)
+        target = np.array([1.0, 2.0, 1.2]) + rng.normal(0, 0.4, (len(use), 3))
+        rel = np.einsum("nij,ni->nj", ref_frames[use], target - ref_shoulders[side][use]) / H
+        norm = np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
+        rel *= np.clip(norm - 0.04, 0.02, 0.325) / norm
+        k = _ik_keys(rel)
+        lo, hi = np.empty(len(use), np.int64), np.empty(len(use), np.int64)
+        _ik_cells(frames, shoulders[side], use, target, H, keys, lo, hi)
+        assert np.array_equal(lo, np.searchsorted(keys, k, side="left"))
+        assert np.array_equal(hi, np.searchsorted(keys, k, side="right"))
+        assert (hi > lo).mean() > 0.5     # most targets fall in a cell of the table

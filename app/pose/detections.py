@@ -36,6 +36,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from app.messages import JOINTS
 from app.pose.model import (DOF, LIMITS_HI, LIMITS_LO, BodyModel, joints_subset, neutral_state, segments_needed,
@@ -151,14 +152,67 @@ def _torso_frames(states: np.ndarray, height: float):
     """Shoulders ``{side: (n, 3)}`` and torso frames ``(n, 3, 3)`` (columns x forward,
     y left, z up) of states, from their joints."""
     j = joints_subset(states, height, _TORSO_JOINTS, _TORSO_NEED)    # the trunk's segments only
-    ls, rs = j[:, 0], j[:, 1]
-    up = j[:, 2] - j[:, 3]
-    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
-    left = ls - rs
-    left -= np.sum(left * up, axis=1, keepdims=True) * up
-    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
-    fwd = np.cross(left, up)
-    return {"l": ls, "r": rs}, np.stack([fwd, left, up], axis=2)
+    frames = np.empty((len(j), 3, 3))
+    _frames_of(j, frames)
+    return {"l": j[:, 0], "r": j[:, 1]}, frames
+
+
+@njit(cache=True, nogil=True)
+def _frames_of(j, frames):
+    """The torso frames of :func:`_torso_frames` from the joints ``(n, 4, 3)`` (left and
+    right shoulder, neck, pelvis): numpy's operations one by one (sums of three in
+    order, the cross product as numpy's), so the same numbers in one loop."""
+    for m in range(j.shape[0]):
+        u0, u1, u2 = j[m, 2, 0] - j[m, 3, 0], j[m, 2, 1] - j[m, 3, 1], j[m, 2, 2] - j[m, 3, 2]
+        nu = max(np.sqrt((u0 * u0 + u1 * u1) + u2 * u2), 1e-9)
+        u0, u1, u2 = u0 / nu, u1 / nu, u2 / nu
+        l0, l1, l2 = j[m, 0, 0] - j[m, 1, 0], j[m, 0, 1] - j[m, 1, 1], j[m, 0, 2] - j[m, 1, 2]
+        dot = (l0 * u0 + l1 * u1) + l2 * u2
+        l0, l1, l2 = l0 - dot * u0, l1 - dot * u1, l2 - dot * u2
+        nl = max(np.sqrt((l0 * l0 + l1 * l1) + l2 * l2), 1e-9)
+        l0, l1, l2 = l0 / nl, l1 / nl, l2 / nl
+        frames[m, 0, 0], frames[m, 1, 0], frames[m, 2, 0] = l1 * u2 - l2 * u1, l2 * u0 - l0 * u2, l0 * u1 - l1 * u0
+        frames[m, 0, 1], frames[m, 1, 1], frames[m, 2, 1] = l0, l1, l2
+        frames[m, 0, 2], frames[m, 1, 2], frames[m, 2, 2] = u0, u1, u2
+
+
+@njit(cache=True, nogil=True)
+def _ik_cells(frames, shoulders, use, targets, height, keys, lo, hi):
+    """For each row ``use[r]``: the wrist target ``targets[r]`` in that row's torso frame
+    relative to its shoulder, in statures, pulled back half a hand and kept within reach
+    (as :meth:`Importance._arms_ik` describes), its look-up cell and the range
+    ``[lo, hi)`` of the table's sorted ``keys`` in that cell (numpy's operations one by
+    one: the same cells)."""
+    for r in range(use.shape[0]):
+        m = use[r]
+        v0 = targets[r, 0] - shoulders[m, 0]
+        v1 = targets[r, 1] - shoulders[m, 1]
+        v2 = targets[r, 2] - shoulders[m, 2]
+        x0 = ((frames[m, 0, 0] * v0 + frames[m, 1, 0] * v1) + frames[m, 2, 0] * v2) / height
+        x1 = ((frames[m, 0, 1] * v0 + frames[m, 1, 1] * v1) + frames[m, 2, 1] * v2) / height
+        x2 = ((frames[m, 0, 2] * v0 + frames[m, 1, 2] * v1) + frames[m, 2, 2] * v2) / height
+        norm = max(np.sqrt((x0 * x0 + x1 * x1) + x2 * x2), 1e-9)
+        f = min(max(norm - 0.04, 0.02), 0.325) / norm
+        q0 = np.int64(np.floor(x0 * f / _IK_CELL)) + 64
+        q1 = np.int64(np.floor(x1 * f / _IK_CELL)) + 64
+        q2 = np.int64(np.floor(x2 * f / _IK_CELL)) + 64
+        key = (q0 * 128 + q1) * 128 + q2
+        a, b = 0, keys.shape[0]          # first index with keys >= key
+        while a < b:
+            c = (a + b) >> 1
+            if keys[c] < key:
+                a = c + 1
+            else:
+                b = c
+        lo[r] = a
+        b = keys.shape[0]                # first index with keys > key
+        while a < b:
+            c = (a + b) >> 1
+            if keys[c] <= key:
+                a = c + 1
+            else:
+                b = c
+        hi[r] = a
 
 
 class Importance:
@@ -187,32 +241,32 @@ class Importance:
         (look-up inverse kinematics on each draw's own torso)."""
         H, hands = self.height, self.det.hands
         shoulders, frames = _torso_frames(out, H)
+        drawn = None
+        if dofs is not None:
+            drawn = np.zeros(out.shape[1], dtype=bool)
+            drawn[np.asarray(dofs)] = True
         for side in ("l", "r"):
             d = _ARM_DOFS[side]
-            if dofs is not None and not np.isin(d, dofs).any():
+            if drawn is not None and not drawn[d].any():
                 continue
             cfg, wrist, keys = arm_table(side)
             use = np.flatnonzero(rng.random(len(out)) < 0.5)
             if len(use) == 0:
                 continue
             target = hands[rng.integers(len(hands), size=len(use))]
-            rel = np.einsum("nij,ni->nj", frames[use], target - shoulders[side][use]) / H
+            lo, hi = np.empty(len(use), np.int64), np.empty(len(use), np.int64)
             # the extremity is on the hand, the wrist half a hand (0.04 H) nearer the
             # shoulder, and never beyond the arm's reach (0.332 H)
-            norm = np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-9)
-            rel *= np.clip(norm - 0.04, 0.02, 0.325) / norm
-            k = _ik_keys(rel)
-            lo = np.searchsorted(keys, k, side="left")
-            hi = np.searchsorted(keys, k, side="right")
+            _ik_cells(frames, shoulders[side], use, target, float(H), keys, lo, hi)
             ok = hi > lo
             if not ok.any():
                 continue
             pick = lo[ok] + (rng.random(int(ok.sum())) * (hi[ok] - lo[ok])).astype(np.int64)
             rows = use[ok]
-            if dofs is None:
+            if drawn is None:
                 out[np.ix_(rows, d)] = cfg[pick] + rng.normal(0, 0.05, (len(rows), 4))
             else:
-                sel = np.isin(d, dofs)
+                sel = drawn[d]
                 out[np.ix_(rows, d[sel])] = cfg[pick][:, sel] + rng.normal(0, 0.05, (len(rows), int(sel.sum())))
 
     def _draw(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None) -> np.ndarray:
