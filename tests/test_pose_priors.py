@@ -96,3 +96,49 @@ def test_arm_proposal_kernels_give_numpys_numbers():
         assert np.array_equal(lo, np.searchsorted(keys, k, side="left"))
         assert np.array_equal(hi, np.searchsorted(keys, k, side="right"))
         assert (hi > lo).mean() > 0.5     # most targets fall in a cell of the table
+
+
+def _numpy_detect(c, height):
+    """Head, top, centroid, shoulder-band matrix and extremity candidates as numpy
+    operations (the earlier code of detections.detect)."""
+    trunk = c[(c[:, 2] > 0.50 * height) & (c[:, 2] < 0.70 * height)]
+    axis = np.median(trunk[:, :2], axis=0) if len(trunk) >= 10 else np.median(c[:, :2], axis=0)
+    near_axis = c[np.hypot(c[:, 0] - axis[0], c[:, 1] - axis[1]) < 0.18]
+    if len(near_axis) < 10:
+        near_axis = c
+    top = float(near_axis[:, 2].max())
+    head = near_axis[near_axis[:, 2] >= top - 0.08].mean(axis=0)
+    head[2] = top - 0.066 * height
+    band = c[(c[:, 2] > top - 0.30 * height) & (c[:, 2] < top - 0.12 * height)]
+    xy = band[:, :2] - band[:, :2].mean(axis=0)
+    upper = c[(c[:, 2] > top - 0.55 * height)]
+    chest = np.array([head[0], head[1], head[2] - 0.125 * height])
+    d = np.hypot(upper[:, 0] - head[0], upper[:, 1] - head[1])
+    r = np.linalg.norm(upper - chest, axis=1)
+    pick = (d > 0.30) | (upper[:, 2] > top + 0.04) | ((r > 0.32 * height) & (upper[:, 2] > top - 0.42 * height))
+    pick &= r < 0.50 * height
+    return head, top, c.mean(axis=0), xy.T @ xy, upper[pick], r[pick]
+
+
+def test_detections_give_numpys_numbers(footless_clip):
+    """The detections' passes over the voxel list (body axis, head, centroid, shoulder
+    band, extremities) against the numpy operations they replace, bit for bit, on a hull
+    clip's frames, on random subsets of them and moved off the grid."""
+    from app.pose.detections import _body_axis_head, _extremities, detect
+
+    rng = np.random.default_rng(5)
+    frames, _ = footless_clip
+    hands = 0
+    for fr in frames:
+        for c in (fr.centres, fr.centres[rng.random(len(fr.centres)) < 0.3] + rng.normal(0, 0.01, 3),
+                  fr.centres[fr.centres[:, 2] < 0.9]):
+            c = np.ascontiguousarray(c)
+            head, top, centroid, band, far, r = _numpy_detect(c, H)
+            axis, top2, head2, centroid2, xy = _body_axis_head(c, H)
+            far2, r2 = _extremities(c, H, top2, head2)
+            assert top2 == top and np.array_equal(head2, head) and np.array_equal(centroid2, centroid)
+            assert np.array_equal(xy.T @ xy, band) and np.array_equal(far2, far) and np.array_equal(r2, r)
+            det = detect(c, H)
+            assert np.array_equal(det.head, head) and (det.hands is None) == (len(far) == 0)
+            hands += len(far)
+    assert hands > 100   # the waving arm's candidates were compared too

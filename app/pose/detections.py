@@ -58,25 +58,13 @@ def detect(centres: np.ndarray, height: float, velocity=None) -> Detections | No
     """Detections in one person's voxel centres ``(N, 3)``; None when too few voxels."""
     if len(centres) < 30:
         return None
-    c = np.asarray(centres)
-    # the body axis: the median of the trunk band (raised arms do not move it much)
-    trunk = c[(c[:, 2] > 0.50 * height) & (c[:, 2] < 0.70 * height)]
-    axis = np.median(trunk[:, :2], axis=0) if len(trunk) >= 10 else np.median(c[:, :2], axis=0)
-    # the head: the top of the blob near that axis (a hand above the head is not it)
-    near_axis = c[np.hypot(c[:, 0] - axis[0], c[:, 1] - axis[1]) < 0.18]
-    if len(near_axis) < 10:
-        near_axis = c
-    top = float(near_axis[:, 2].max())
-    near_top = near_axis[near_axis[:, 2] >= top - 0.08]
-    head = near_top.mean(axis=0)
-    head[2] = top - 0.066 * height
-    centroid = c.mean(axis=0)
-    band = c[(c[:, 2] > top - 0.30 * height) & (c[:, 2] < top - 0.12 * height)]
+    c = np.ascontiguousarray(centres, dtype=np.float64)
+    axis, top, head, centroid, xy = _body_axis_head(c, float(height))
+    band = xy   # the shoulder band's horizontal coordinates, centred (B, 2)
     headings = []
     if velocity is not None and np.hypot(*velocity[:2]) > 0.3:
         headings.append(math.atan2(velocity[1], velocity[0]))
     if len(band) >= 10:
-        xy = band[:, :2] - band[:, :2].mean(axis=0)
         evals, evecs = np.linalg.eigh(xy.T @ xy)
         major = evecs[:, 1]
         yaw = math.atan2(major[1], major[0]) - math.pi / 2    # the shoulder line's normal
@@ -84,15 +72,9 @@ def detect(centres: np.ndarray, height: float, velocity=None) -> Detections | No
     if not headings:
         headings = list(np.linspace(-math.pi, math.pi, 4, endpoint=False))
     # extremities: upper-body voxels far from the torso, the farthest of each side
-    upper = c[(c[:, 2] > top - 0.55 * height)]
-    chest = np.array([head[0], head[1], head[2] - 0.125 * height])     # the shoulders' centre
-    d = np.hypot(upper[:, 0] - head[0], upper[:, 1] - head[1])
-    r = np.linalg.norm(upper - chest, axis=1)
     # (far from the shoulders only above the hips: the hips are as far from them as a hand)
     # (and within an arm's reach: a hull's ghosts farther away are nobody's hand)
-    pick = (d > 0.30) | (upper[:, 2] > top + 0.04) | ((r > 0.32 * height) & (upper[:, 2] > top - 0.42 * height))
-    pick &= r < 0.50 * height
-    far, r = upper[pick], r[pick]
+    far, r = _extremities(c, float(height), top, head)
     hands = None
     if len(far):
         side = np.ones(len(far), dtype=bool)
@@ -104,6 +86,93 @@ def detect(centres: np.ndarray, height: float, velocity=None) -> Detections | No
             keep.extend(order[:20])
         hands = far[np.array(keep, dtype=np.int64)]
     return Detections(head=head, top=top, centroid=centroid, headings=headings, hands=hands)
+
+
+@njit(cache=True, nogil=True)
+def _body_axis_head(c, height):
+    """:func:`detect`'s body axis, blob top, head, centroid and the centred horizontal
+    coordinates of the shoulder band, in passes over the voxel list instead of numpy's
+    masked copies (the same operations: medians, sums in order, the same numbers)."""
+    n = c.shape[0]
+    buf = np.empty(n)
+    m = 0
+    for i in range(n):
+        if c[i, 2] > 0.50 * height and c[i, 2] < 0.70 * height:
+            m += 1
+    axis = np.empty(2)
+    for d in range(2):
+        k = 0
+        for i in range(n):
+            if m < 10 or (c[i, 2] > 0.50 * height and c[i, 2] < 0.70 * height):
+                buf[k] = c[i, d]
+                k += 1
+        axis[d] = np.median(buf[:k])
+    near = np.empty(n, dtype=np.bool_)
+    k = 0
+    for i in range(n):
+        near[i] = np.hypot(c[i, 0] - axis[0], c[i, 1] - axis[1]) < 0.18
+        k += near[i]
+    if k < 10:
+        near[:] = True
+    top = -np.inf
+    for i in range(n):
+        if near[i] and c[i, 2] > top:
+            top = c[i, 2]
+    head = np.zeros(3)
+    k = 0
+    for i in range(n):
+        if near[i] and c[i, 2] >= top - 0.08:
+            for d in range(3):
+                head[d] += c[i, d]
+            k += 1
+    head /= k
+    head[2] = top - 0.066 * height
+    centroid = np.zeros(3)
+    for i in range(n):
+        for d in range(3):
+            centroid[d] += c[i, d]
+    centroid /= n
+    lo, hi = top - 0.30 * height, top - 0.12 * height
+    mean = np.zeros(2)
+    k = 0
+    for i in range(n):
+        if c[i, 2] > lo and c[i, 2] < hi:
+            mean[0] += c[i, 0]
+            mean[1] += c[i, 1]
+            k += 1
+    xy = np.empty((k, 2))
+    if k:
+        mean /= k
+        k = 0
+        for i in range(n):
+            if c[i, 2] > lo and c[i, 2] < hi:
+                xy[k, 0] = c[i, 0] - mean[0]
+                xy[k, 1] = c[i, 1] - mean[1]
+                k += 1
+    return axis, top, head, centroid, xy
+
+
+@njit(cache=True, nogil=True)
+def _extremities(c, height, top, head):
+    """:func:`detect`'s extremity candidates (upper-body voxels far from the torso,
+    within an arm's reach) and their distances to the shoulders' centre, in voxel order."""
+    n = c.shape[0]
+    far = np.empty((n, 3))
+    r = np.empty(n)
+    chest2 = head[2] - 0.125 * height
+    k = 0
+    for i in range(n):
+        z = c[i, 2]
+        if not z > top - 0.55 * height:
+            continue
+        d = np.hypot(c[i, 0] - head[0], c[i, 1] - head[1])
+        e0, e1, e2 = c[i, 0] - head[0], c[i, 1] - head[1], z - chest2
+        ri = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
+        if (d > 0.30 or z > top + 0.04 or (ri > 0.32 * height and z > top - 0.42 * height)) and ri < 0.50 * height:
+            far[k, 0], far[k, 1], far[k, 2] = c[i, 0], c[i, 1], z
+            r[k] = ri
+            k += 1
+    return far[:k], r[:k]
 
 
 def _arm_angles(direction: np.ndarray, side: int):
