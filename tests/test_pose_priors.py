@@ -142,3 +142,38 @@ def test_detections_give_numpys_numbers(footless_clip):
             assert np.array_equal(det.head, head) and (det.hands is None) == (len(far) == 0)
             hands += len(far)
     assert hands > 100   # the waving arm's candidates were compared too
+
+
+def test_importance_draws_are_the_sequential_draws():
+    """The importance function's normal draws taken in one call are the numbers of the
+    one-call-per-DoF draws it replaced (same generator state, same order)."""
+    from app.pose.detections import Detections, Importance
+    from app.pose.model import standing_root_height
+
+    det = Detections(head=np.array([1.0, 2.0, 1.6]), top=1.70, centroid=np.array([1.0, 2.0, 0.9]),
+                     headings=[0.3, 0.3 + np.pi], hands=None)
+    for n in (1, 37):
+        got = Importance(det, H)._draw(n, np.random.default_rng(n))
+        rng = np.random.default_rng(n)
+        ref = np.tile(neutral_state(H), (n, 1))
+        stand = standing_root_height(H)
+        yaw = np.array(det.headings)[rng.integers(2, size=n)] + rng.normal(0, 0.15, n)
+        ref[:, DOF["yaw"]] = yaw
+        ref[:, DOF["z"]] = np.clip(min(stand, det.top - (H - stand)) + rng.normal(0, 0.02, n), 0.25 * H, stand + 0.02)
+        flex = np.clip(max(0.0, (H - det.top) / H) * 2.5, 0.0, 1.0) * rng.random(n)
+        ref[:, DOF["torso_flex"]] = flex
+        back = np.sin(flex) * 0.295 * H
+        ref[:, DOF["x"]] = det.head[0] - np.cos(yaw) * back + rng.normal(0, 0.03, n)
+        ref[:, DOF["y"]] = det.head[1] - np.sin(yaw) * back + rng.normal(0, 0.03, n)
+        for name in ("pitch", "roll", "torso_twist", "torso_lat", "neck_lat", "neck_flex"):
+            ref[:, DOF[name]] = rng.normal(0, 0.05, n)
+        for side in "lr":
+            ref[:, DOF[f"{side}_hip_flex"]] = rng.normal(0.05, 0.15, n)
+            ref[:, DOF[f"{side}_hip_abd"]] = rng.normal(0.0, 0.05, n)
+            ref[:, DOF[f"{side}_hip_rot"]] = rng.normal(0.0, 0.05, n)
+            ref[:, DOF[f"{side}_knee"]] = np.abs(rng.normal(0.1, 0.2, n))
+            ref[:, DOF[f"{side}_sh_flex"]] = rng.normal(0.0, 0.2, n)
+            ref[:, DOF[f"{side}_sh_abd"]] = np.abs(rng.normal(0.1, 0.2, n))
+            ref[:, DOF[f"{side}_sh_rot"]] = rng.normal(0.0, 0.2, n)
+            ref[:, DOF[f"{side}_elbow"]] = np.abs(rng.normal(0.2, 0.3, n))
+        assert np.array_equal(got, ref)

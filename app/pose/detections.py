@@ -284,6 +284,19 @@ def _ik_cells(frames, shoulders, use, targets, height, keys, lo, hi):
         hi[r] = a
 
 
+#: the importance draws' DoFs after the root's, in the order they are drawn: (DoF, mean,
+#: deviation, folded to |.|): the trunk and neck near upright, legs near standing, arms hanging
+_REST = ([(n, 0.0, 0.05, False) for n in ("pitch", "roll", "torso_twist", "torso_lat", "neck_lat", "neck_flex")]
+         + [(f"{side}_{n}", loc, scale, fold) for side in ("l", "r") for n, loc, scale, fold in (
+             ("hip_flex", 0.05, 0.15, False), ("hip_abd", 0.0, 0.05, False), ("hip_rot", 0.0, 0.05, False),
+             ("knee", 0.1, 0.2, True), ("sh_flex", 0.0, 0.2, False), ("sh_abd", 0.1, 0.2, True),
+             ("sh_rot", 0.0, 0.2, False), ("elbow", 0.2, 0.3, True))])
+_REST_DOFS = np.array([DOF[r[0]] for r in _REST], dtype=np.int64)
+_REST_LOC = np.array([r[1] for r in _REST])
+_REST_SCALE = np.array([r[2] for r in _REST])
+_REST_ABS = np.array([r[3] for r in _REST])
+
+
 class Importance:
     """The importance function ``q(y | detections)`` of one frame (callable
     ``(n, rng, base, dofs) -> (n, 27)``; ``base`` gives the DoFs the detections say
@@ -343,14 +356,29 @@ class Importance:
         out = np.tile(neutral_state(H), (n, 1)) if base is None else np.array(base, dtype=np.float64)
         stand = standing_root_height(H)
         crouch = max(0.0, (H - (det.top - 0.0)) / H)      # how much lower than standing the top is
-        yaw = np.array(det.headings)[rng.integers(len(det.headings), size=n)] + rng.normal(0, 0.15, n)
+        straight = det.hands is not None and len(det.hands) and self.ik == "straight"
+        heading = np.array(det.headings)[rng.integers(len(det.headings), size=n)]
+        if straight:   # (the draws interleave with the arms' below: one call each, in order)
+            yaw = heading + rng.normal(0, 0.15, n)
+            root_z = min(stand, det.top - (H - stand)) + rng.normal(0, 0.02, n)
+        else:          # consecutive normal draws in one call: the same numbers (loc + scale z, in order)
+            z = rng.standard_normal((2, n))
+            yaw = heading + (0.0 + 0.15 * z[0])
+            root_z = min(stand, det.top - (H - stand)) + (0.0 + 0.02 * z[1])
         out[:, DOF["yaw"]] = yaw
-        root_z = min(stand, det.top - (H - stand)) + rng.normal(0, 0.02, n)
         out[:, DOF["z"]] = np.clip(root_z, 0.25 * H, stand + 0.02)
         flex = np.clip(crouch * 2.5, 0.0, 1.0) * rng.random(n)
         out[:, DOF["torso_flex"]] = flex
         # root under the head, moved back by the lean
         back = np.sin(flex) * 0.295 * H
+        if not straight:
+            z = rng.standard_normal((2 + len(_REST_DOFS), n))
+            out[:, DOF["x"]] = det.head[0] - np.cos(yaw) * back + (0.0 + 0.03 * z[0])
+            out[:, DOF["y"]] = det.head[1] - np.sin(yaw) * back + (0.0 + 0.03 * z[1])
+            rest = _REST_LOC[:, None] + _REST_SCALE[:, None] * z[2:]
+            np.abs(rest, out=rest, where=_REST_ABS[:, None])
+            out[:, _REST_DOFS] = rest.T
+            return out
         out[:, DOF["x"]] = det.head[0] - np.cos(yaw) * back + rng.normal(0, 0.03, n)
         out[:, DOF["y"]] = det.head[1] - np.sin(yaw) * back + rng.normal(0, 0.03, n)
         for name in ("pitch", "roll", "torso_twist", "torso_lat", "neck_lat", "neck_flex"):
@@ -364,19 +392,19 @@ class Importance:
             out[:, DOF[f"{side}_sh_abd"]] = np.abs(rng.normal(0.1, 0.2, n))
             out[:, DOF[f"{side}_sh_rot"]] = rng.normal(0.0, 0.2, n)
             out[:, DOF[f"{side}_elbow"]] = np.abs(rng.normal(0.2, 0.3, n))
-            if det.hands is not None and len(det.hands) and self.ik == "straight":
-                use = rng.random(n) < 0.5
-                for k in np.flatnonzero(use):
-                    cy, sy = math.cos(yaw[k]), math.sin(yaw[k])
-                    shoulder = np.array([det.head[0], det.head[1], det.head[2] - 0.125 * H])
-                    shoulder[:2] += s * 0.104 * H * np.array([-sy, cy])
-                    target = det.hands[rng.integers(len(det.hands))]
-                    v = target - shoulder
-                    local = np.array([cy * v[0] + sy * v[1], -sy * v[0] + cy * v[1], v[2]])
-                    if s * local[1] < -0.05:
-                        continue   # that extremity is on the other side
-                    f, a = _arm_angles(local, s)
-                    out[k, DOF[f"{side}_sh_flex"]] = f + rng.normal(0, 0.1)
-                    out[k, DOF[f"{side}_sh_abd"]] = a + rng.normal(0, 0.1)
-                    out[k, DOF[f"{side}_elbow"]] = abs(rng.normal(0.0, 0.15))
+            # straight arms toward the extremities (the earlier proposal)
+            use = rng.random(n) < 0.5
+            for k in np.flatnonzero(use):
+                cy, sy = math.cos(yaw[k]), math.sin(yaw[k])
+                shoulder = np.array([det.head[0], det.head[1], det.head[2] - 0.125 * H])
+                shoulder[:2] += s * 0.104 * H * np.array([-sy, cy])
+                target = det.hands[rng.integers(len(det.hands))]
+                v = target - shoulder
+                local = np.array([cy * v[0] + sy * v[1], -sy * v[0] + cy * v[1], v[2]])
+                if s * local[1] < -0.05:
+                    continue   # that extremity is on the other side
+                f, a = _arm_angles(local, s)
+                out[k, DOF[f"{side}_sh_flex"]] = f + rng.normal(0, 0.1)
+                out[k, DOF[f"{side}_sh_abd"]] = a + rng.normal(0, 0.1)
+                out[k, DOF[f"{side}_elbow"]] = abs(rng.normal(0.0, 0.15))
         return out
