@@ -177,3 +177,24 @@ def test_importance_draws_are_the_sequential_draws():
             ref[:, DOF[f"{side}_sh_rot"]] = rng.normal(0.0, 0.2, n)
             ref[:, DOF[f"{side}_elbow"]] = np.abs(rng.normal(0.2, 0.3, n))
         assert np.array_equal(got, ref)
+
+
+def test_observation_box_and_cells_are_numpys(footless_clip):
+    """The observation's box (one pass for the bounds) and cells (one pass for the index
+    and the occupancy) against the numpy operations they replace, on hull frames moved
+    off the grid."""
+    from app.pose.observation import observe
+
+    frames, cal = footless_clip
+    rng = np.random.default_rng(2)
+    for fr in frames[::4]:
+        c = fr.centres + rng.normal(0, 0.004, 3)
+        obs = observe(c, 0.02, cal.room_min, cal.room_max)
+        lo, hi = c.min(axis=0) - 0.35, c.max(axis=0) + 0.35
+        lo[2] = min(lo[2], cal.room_min[2])
+        origin = np.floor(lo / 0.02) * 0.02
+        dims = np.maximum(np.ceil((hi - origin) / 0.02).astype(np.int64) + 1, 1)
+        idx = np.floor((c - origin) / 0.02).astype(np.int64)
+        occ = np.zeros(tuple(dims), np.uint8)
+        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
+        assert np.array_equal(obs.origin, origin) and np.array_equal(obs.occ, occ)

@@ -24,6 +24,31 @@ SURFACES = ("outer", "boundary")
 
 
 @njit(cache=True, nogil=True)
+def _bounds(centres):
+    """Per axis the least and the greatest coordinate of ``centres (N >= 1, 3)`` (numpy's
+    ``min`` / ``max`` over axis 0 in one pass)."""
+    lo = centres[0].copy()
+    hi = centres[0].copy()
+    for n in range(1, centres.shape[0]):
+        for d in range(3):
+            v = centres[n, d]
+            if v < lo[d]:
+                lo[d] = v
+            if v > hi[d]:
+                hi[d] = v
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _index(centres, origin, size, idx, occ):
+    """``idx = floor((centres - origin) / size)`` (numpy's operations, the same cells) and
+    those cells of ``occ`` set, in one pass."""
+    for n in range(centres.shape[0]):
+        for d in range(3):
+            idx[n, d] = np.int64(np.floor((centres[n, d] - origin[d]) / size))
+        occ[idx[n, 0], idx[n, 1], idx[n, 2]] = 1
+
+@njit(cache=True, nogil=True)
 def _fill(idx, surf, occ, prox, kernel, offs):
     for n in range(idx.shape[0]):
         i, j, k = idx[n, 0], idx[n, 1], idx[n, 2]
@@ -226,7 +251,8 @@ def observe(centres: np.ndarray, voxel_size: float, room_lo, room_hi, surface=No
     room_lo, room_hi = np.asarray(room_lo, float), np.asarray(room_hi, float)
     s = float(voxel_size)
     if len(centres):
-        lo, hi = centres.min(axis=0) - margin, centres.max(axis=0) + margin
+        lo, hi = _bounds(centres)
+        lo, hi = lo - margin, hi + margin
     else:
         lo, hi = room_lo, room_lo + 2 * s
     lo[2] = min(lo[2], room_lo[2])
@@ -234,9 +260,9 @@ def observe(centres: np.ndarray, voxel_size: float, room_lo, room_hi, surface=No
     dims = np.maximum(np.ceil((hi - origin) / s).astype(np.int64) + 1, 1)
     occ = np.zeros(tuple(dims), dtype=np.uint8)
     prox = np.zeros(tuple(dims), dtype=np.float32)
-    idx = np.floor((centres - origin) / s).astype(np.int64)
+    idx = np.empty((len(centres), 3), dtype=np.int64)
+    _index(centres, origin, s, idx, occ)   # (and marks occ)
     if surface is None or len(surface) != len(centres):
-        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
         surface = _outer_surface(idx, occ) if mode == "outer" else _surface(idx, occ)
     offs, kern = _kernel(int(radius), float(sigma))
     _fill(idx, np.asarray(surface, dtype=np.bool_), occ, prox, kern, offs)
