@@ -198,3 +198,21 @@ def test_observation_box_and_cells_are_numpys(footless_clip):
         occ = np.zeros(tuple(dims), np.uint8)
         occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
         assert np.array_equal(obs.origin, origin) and np.array_equal(obs.occ, occ)
+
+
+def test_leg_penalties_are_the_floor_and_stance_priors():
+    """The scorer's one pass over the legs gives the floor and stance priors' numbers bit
+    for bit (random states inside the joint limits: standing, crouching, legs spread)."""
+    from app.pose.annealing import propagate
+    from app.pose.coverage import floor_penalty, leg_penalties
+    from app.pose.filters import SIGMA0
+    from app.pose.model import LIMITS_HI, LIMITS_LO
+
+    rng = np.random.default_rng(4)
+    states = propagate(np.tile(neutral_state(H, (1.0, 2.0, None)), (4000, 1)), 3 * SIGMA0, LIMITS_LO, LIMITS_HI, rng)
+    for both, stance in ((0.0, 0.0), (0.05, 0.03)):
+        fl, st = leg_penalties(states, H, 0.02, both, stance)
+        assert np.array_equal(fl, floor_penalty(states, H, 0.02, both))
+        assert (st is None) == (stance == 0)
+        if st is not None:
+            assert np.array_equal(st, stance_penalty(states, H, stance)) and (st > 0).mean() > 0.1 and (st == 0).any()

@@ -57,13 +57,14 @@ hull has no right foot and the right ankle sat 70 mm sideways (within 100 mm in
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from app.messages import JOINTS
 from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
 from app.pose.model import joints_subset, segments_needed, standing_root_height
 
-__all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "STANCE_FREE"]
+__all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "STANCE_FREE"]
 
 _ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.int64)
 _ANKLE_NEED = segments_needed(_ANKLES)   # forward kinematics of the legs only
@@ -101,6 +102,42 @@ def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float 
     return out
 
 
+def leg_penalties(states: np.ndarray, height: float, floor: float, both: float = 0.0, stance: float = 0.0):
+    """:func:`floor_penalty` (deviation ``floor``, ``both``) and, when ``stance > 0``,
+    :func:`stance_penalty` (else None) from one forward kinematics of the legs and one
+    loop: the same numbers as the two functions (the ankles are the same whichever
+    joints are asked for; the operations are numpy's, one by one)."""
+    j = joints_subset(states, height, _LEGS, _LEGS_NEED)
+    fl = np.empty(len(j))
+    st = np.empty(len(j)) if stance > 0 else None
+    _leg_penalties(j, 0.039 * height, float(floor), float(both), 0.9 * (standing_root_height(height) - 0.025 * height),
+                   float(stance), STANCE_FREE, fl, st if st is not None else fl[:0])
+    return fl, st
+
+
+@njit(cache=True, nogil=True)
+def _leg_penalties(j, rest, floor, both, upright_z, stance, free, fl, st):
+    """Per state the floor prior (lower ankle, and the higher one when ``both > 0``) and,
+    when ``st`` has rows, the stance prior, from the joints ``(P, 4, 3)`` of
+    :data:`_LEGS` (left hip, left ankle, right hip, right ankle)."""
+    for p in range(j.shape[0]):
+        zl, zr = j[p, 1, 2], j[p, 3, 2]
+        low, high = min(zl, zr), max(zl, zr)
+        x = max(low - rest, 0.0) / floor
+        v = 0.5 * (x * x)
+        if both > 0:
+            x = max(high - rest, 0.0) / both
+            v = v + 0.5 * (x * x)
+        fl[p] = v
+        if st.shape[0]:
+            v = 0.0
+            for hip, ankle in ((0, 1), (2, 3)):
+                d = np.hypot(j[p, ankle, 0] - j[p, hip, 0], j[p, ankle, 1] - j[p, hip, 1])
+                x = max(d - free, 0.0) / stance
+                v += 0.5 * (x * x) if j[p, hip, 2] >= upright_z else 0.0
+            st[p] = v
+
+
 def coverage(counts: np.ndarray, active: np.ndarray, data_count: int, delta: float) -> np.ndarray:
     """``rho_Cov (P,)``: share of the ``data_count`` data voxels covered by the active
     parts' occupied model points (``counts (P, Q, 5)`` of :meth:`Scorer.counts`)."""
@@ -133,9 +170,11 @@ class CoverageScorer(Scorer):
             miss = 1.0 - coverage(counts, act, self.obs.count, delta)
             lw = lw - 0.5 * miss ** 2 / self.sigma2
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
-            lw = lw - floor_penalty(states, self.flesh.height, self.floor, self.both_feet)
-            if self.stance > 0 and self.both_feet > 0:
-                lw = lw - stance_penalty(states, self.flesh.height, self.stance)
+            floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
+                                          self.stance if self.both_feet > 0 else 0.0)
+            lw = lw - floor
+            if stance is not None:
+                lw = lw - stance
         if self.heading is not None:
             yaw, sigma = self.heading
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))
