@@ -73,7 +73,7 @@ def test_arm_proposal_kernels_give_numpys_numbers():
     the table's range for it) against the numpy operations they replace, bit for bit, on
     random states inside the joint limits and random hand candidates."""
     from app.pose.annealing import propagate
-    from app.pose.detections import _ik_cells, _ik_keys, _torso_frames, arm_table
+    from app.pose.detections import _ARM_DOFS, _ik_assign, _ik_cells, _ik_keys, _torso_frames, arm_table
     from app.pose.filters import SIGMA0
     from app.pose.model import LIMITS_HI, LIMITS_LO
 
@@ -96,6 +96,15 @@ def test_arm_proposal_kernels_give_numpys_numbers():
         assert np.array_equal(lo, np.searchsorted(keys, k, side="left"))
         assert np.array_equal(hi, np.searchsorted(keys, k, side="right"))
         assert (hi > lo).mean() > 0.5     # most targets fall in a cell of the table
+        # the drawn configurations: lo + int(u (hi - lo)) plus noise, on some of the arm's DoFs
+        cfg, d, ok = arm_table(side)[0], _ARM_DOFS[side], hi > lo
+        for cols in (np.arange(4), np.array([1, 3])):
+            u, noise = rng.random(int(ok.sum())), rng.normal(0, 0.05, (int(ok.sum()), len(cols)))
+            ref, got = states.copy(), states.copy()
+            pick = lo[ok] + (u * (hi[ok] - lo[ok])).astype(np.int64)
+            ref[np.ix_(use[ok], d[cols])] = cfg[pick][:, cols] + noise
+            _ik_assign(got, use, lo, hi, u, cfg, d, cols, noise)
+            assert np.array_equal(got, ref)
 
 
 def _numpy_detect(c, height):

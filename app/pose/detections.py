@@ -187,6 +187,7 @@ def _arm_angles(direction: np.ndarray, side: int):
 _ARM_DOFS = {side: np.array([DOF[f"{side}_{n}"] for n in ("sh_flex", "sh_abd", "sh_rot", "elbow")])
              for side in ("l", "r")}
 _IK_CELL = 0.025
+_ARM_COLS = np.arange(4)   # the arm DoFs' columns in a table's configurations
 _IK_TABLES: dict = {}
 
 
@@ -251,7 +252,8 @@ def _ik_cells(frames, shoulders, use, targets, height, keys, lo, hi):
     relative to its shoulder, in statures, pulled back half a hand and kept within reach
     (as :meth:`Importance._arms_ik` describes), its look-up cell and the range
     ``[lo, hi)`` of the table's sorted ``keys`` in that cell (numpy's operations one by
-    one: the same cells)."""
+    one: the same cells); returns how many rows' cells have configurations."""
+    found = 0
     for r in range(use.shape[0]):
         m = use[r]
         v0 = targets[r, 0] - shoulders[m, 0]
@@ -282,6 +284,23 @@ def _ik_cells(frames, shoulders, use, targets, height, keys, lo, hi):
             else:
                 b = c
         hi[r] = a
+        found += hi[r] > lo[r]
+    return found
+
+
+@njit(cache=True, nogil=True)
+def _ik_assign(out, use, lo, hi, u, cfg, dofs, cols, noise):
+    """The rows ``use`` whose cell has configurations (``hi > lo``), in order, take the
+    table's configuration ``lo + int(u (hi - lo))`` plus ``noise`` on the arm DoFs
+    ``dofs[cols]`` (numpy's operations: the same numbers as the fancy-indexed update)."""
+    k = 0
+    for r in range(use.shape[0]):
+        if hi[r] <= lo[r]:
+            continue
+        pick = lo[r] + np.int64(u[k] * np.float64(hi[r] - lo[r]))
+        for c in range(cols.shape[0]):
+            out[use[r], dofs[cols[c]]] = cfg[pick, cols[c]] + noise[k, c]
+        k += 1
 
 
 #: the importance draws' DoFs after the root's, in the order they are drawn: (DoF, mean,
@@ -339,17 +358,14 @@ class Importance:
             lo, hi = np.empty(len(use), np.int64), np.empty(len(use), np.int64)
             # the extremity is on the hand, the wrist half a hand (0.04 H) nearer the
             # shoulder, and never beyond the arm's reach (0.332 H)
-            _ik_cells(frames, shoulders[side], use, target, float(H), keys, lo, hi)
-            ok = hi > lo
-            if not ok.any():
+            found = _ik_cells(frames, shoulders[side], use, target, float(H), keys, lo, hi)
+            if found == 0:
                 continue
-            pick = lo[ok] + (rng.random(int(ok.sum())) * (hi[ok] - lo[ok])).astype(np.int64)
-            rows = use[ok]
-            if drawn is None:
-                out[np.ix_(rows, d)] = cfg[pick] + rng.normal(0, 0.05, (len(rows), 4))
-            else:
-                sel = drawn[d]
-                out[np.ix_(rows, d[sel])] = cfg[pick][:, sel] + rng.normal(0, 0.05, (len(rows), int(sel.sum())))
+            # a configuration of the cell, uniformly (lo + u (hi - lo)), with noise on the drawn DoFs
+            u = rng.random(found)
+            cols = _ARM_COLS if drawn is None else _ARM_COLS[drawn[d]]
+            noise = rng.normal(0, 0.05, (found, len(cols)))
+            _ik_assign(out, use, lo, hi, u, cfg, d, cols, noise)
 
     def _draw(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None) -> np.ndarray:
         H, det = self.height, self.det
