@@ -225,3 +225,16 @@ def test_leg_penalties_are_the_floor_and_stance_priors():
         assert (st is None) == (stance == 0)
         if st is not None:
             assert np.array_equal(st, stance_penalty(states, H, stance)) and (st > 0).mean() > 0.1 and (st == 0).any()
+
+
+def test_coverage_is_the_masked_sum():
+    """rho_Cov from the kernel's counts (whole numbers) against numpy's masked sum."""
+    from app.pose.coverage import coverage
+
+    rng = np.random.default_rng(6)
+    counts = rng.integers(0, 300, (500, 11, 5)).astype(np.float64)
+    active = rng.random(11) < 0.6
+    for n, delta in ((5000, 2.0), (40000, 1.0), (0, 2.0)):
+        ref = np.minimum(counts[:, active, 2].sum(axis=1) * delta ** 3 / max(n, 1), 1.0)
+        got = coverage(counts, active, n, delta)
+        assert np.array_equal(got, ref) and ((got < 1).any() or n == 0)

@@ -141,8 +141,21 @@ def _leg_penalties(j, rest, floor, both, upright_z, stance, free, fl, st):
 def coverage(counts: np.ndarray, active: np.ndarray, data_count: int, delta: float) -> np.ndarray:
     """``rho_Cov (P,)``: share of the ``data_count`` data voxels covered by the active
     parts' occupied model points (``counts (P, Q, 5)`` of :meth:`Scorer.counts`)."""
-    occupied = counts[:, np.asarray(active, bool), 2].sum(axis=1)
-    return np.minimum(occupied * delta ** 3 / max(int(data_count), 1), 1.0)
+    out = np.empty(len(counts))
+    _coverage(np.ascontiguousarray(counts, dtype=np.float64), np.flatnonzero(np.asarray(active, bool)),
+              float(delta) ** 3, float(max(int(data_count), 1)), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _coverage(counts, parts, cube, data, out):
+    """:func:`coverage` in one loop: the occupied counts are whole numbers, so their sum is
+    exact in any order (the same numbers as numpy's masked sum)."""
+    for p in range(counts.shape[0]):
+        occupied = 0.0
+        for q in parts:
+            occupied += counts[p, q, 2]
+        out[p] = min(occupied * cube / data, 1.0)
 
 
 class CoverageScorer(Scorer):
