@@ -189,24 +189,34 @@ def test_importance_draws_are_the_sequential_draws():
 
 
 def test_observation_box_and_cells_are_numpys(footless_clip):
-    """The observation's box (one pass for the bounds) and cells (one pass for the index
-    and the occupancy) against the numpy operations they replace, on hull frames moved
-    off the grid."""
-    from app.pose.observation import observe
+    """The observation's box (one pass for the bounds), cells (one pass for the index
+    and the occupancy) and proximity map (flat offsets away from the box's border)
+    against numpy operations, on hull frames moved off the grid."""
+    from app.pose.observation import _kernel, observe
 
     frames, cal = footless_clip
     rng = np.random.default_rng(2)
     for fr in frames[::4]:
-        c = fr.centres + rng.normal(0, 0.004, 3)
-        obs = observe(c, 0.02, cal.room_min, cal.room_max)
-        lo, hi = c.min(axis=0) - 0.35, c.max(axis=0) + 0.35
-        lo[2] = min(lo[2], cal.room_min[2])
-        origin = np.floor(lo / 0.02) * 0.02
-        dims = np.maximum(np.ceil((hi - origin) / 0.02).astype(np.int64) + 1, 1)
-        idx = np.floor((c - origin) / 0.02).astype(np.int64)
-        occ = np.zeros(tuple(dims), np.uint8)
-        occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
-        assert np.array_equal(obs.origin, origin) and np.array_equal(obs.occ, occ)
+        # (no margin: the kernel crosses the box's border, the bounds-tested path)
+        for margin in (0.35, 0.0):
+            c = fr.centres + rng.normal(0, 0.004, 3)
+            obs = observe(c, 0.02, cal.room_min, cal.room_max, margin=margin)
+            lo, hi = c.min(axis=0) - margin, c.max(axis=0) + margin
+            lo[2] = min(lo[2], cal.room_min[2])
+            origin = np.floor(lo / 0.02) * 0.02
+            dims = np.maximum(np.ceil((hi - origin) / 0.02).astype(np.int64) + 1, 1)
+            idx = np.floor((c - origin) / 0.02).astype(np.int64)
+            occ = np.zeros(tuple(dims), np.uint8)
+            occ[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
+            assert np.array_equal(obs.origin, origin) and np.array_equal(obs.occ, occ)
+            # the proximity map: the kernel stamped by maximum around every surface voxel
+            offs, kern = _kernel(2, 1.0)
+            prox = np.zeros(tuple(dims), np.float32)
+            for o, v in zip(offs, kern):
+                at = idx[obs.surface] + o
+                at = at[np.all((at >= 0) & (at < dims), axis=1)]
+                np.maximum.at(prox, (at[:, 0], at[:, 1], at[:, 2]), v)
+            assert np.array_equal(obs.prox, prox)
 
 
 def test_leg_penalties_are_the_floor_and_stance_priors():

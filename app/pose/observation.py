@@ -50,14 +50,32 @@ def _index(centres, origin, size, idx, occ):
 
 @njit(cache=True, nogil=True)
 def _fill(idx, surf, occ, prox, kernel, offs):
+    """Marks the voxels in ``occ`` and stamps the Gaussian ``kernel`` (by maximum) around
+    every surface voxel into ``prox`` (Eq. 6.16's proximity map). A voxel whose kernel
+    lies inside the box (all but those near the floor) is stamped through flat offsets
+    with no bounds tests (the maximum is the same in any order)."""
     for n in range(idx.shape[0]):
         i, j, k = idx[n, 0], idx[n, 1], idx[n, 2]
         occ[i, j, k] = 1
     X, Y, Z = prox.shape
+    flat = prox.reshape(-1)
+    r0 = r1 = r2 = 0
+    for m in range(offs.shape[0]):
+        r0, r1, r2 = max(r0, abs(offs[m, 0])), max(r1, abs(offs[m, 1])), max(r2, abs(offs[m, 2]))
+    step = np.empty(offs.shape[0], dtype=np.int64)
+    for m in range(offs.shape[0]):
+        step[m] = (offs[m, 0] * Y + offs[m, 1]) * Z + offs[m, 2]
     for n in range(idx.shape[0]):
         if not surf[n]:
             continue
         i, j, k = idx[n, 0], idx[n, 1], idx[n, 2]
+        if r0 <= i < X - r0 and r1 <= j < Y - r1 and r2 <= k < Z - r2:
+            f = (i * Y + j) * Z + k
+            for m in range(step.shape[0]):
+                v = kernel[m]
+                if v > flat[f + step[m]]:
+                    flat[f + step[m]] = v
+            continue
         for m in range(offs.shape[0]):
             a, b, c = i + offs[m, 0], j + offs[m, 1], k + offs[m, 2]
             if 0 <= a < X and 0 <= b < Y and 0 <= c < Z:
