@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from .carving import BG_VOTE, OCC_VOTE
+from .grid import brick_position
 
 __all__ = ["count_misses", "select_misses"]
 
@@ -33,22 +34,13 @@ __all__ = ["count_misses", "select_misses"]
 @njit(cache=True, nogil=True)
 def _misses(indices, levels, brick_dims, lut, votes, occluded, depth_coef, occ_depth, k_top, out):
     n_cams = lut.shape[1]
-    B = np.int64(1) << levels
-    lmask = B - 1
     nby = np.int64(brick_dims[1])
     nbz = np.int64(brick_dims[2])
     for n in range(indices.shape[0]):
         i = np.int64(indices[n, 0])
         j = np.int64(indices[n, 1])
         k = np.int64(indices[n, 2])
-        brick = ((i >> levels) * nby + (j >> levels)) * nbz + (k >> levels)
-        li, lj, lk = i & lmask, j & lmask, k & lmask
-        code = np.int64(0)
-        for b in range(levels):
-            code |= ((li >> b) & 1) << (3 * b + 2)
-            code |= ((lj >> b) & 1) << (3 * b + 1)
-            code |= ((lk >> b) & 1) << (3 * b)
-        p = (brick << (3 * levels)) + code
+        p = brick_position(i, j, k, levels, nby, nbz)
         m = 0
         for c in range(n_cams):
             q = lut[p, c]

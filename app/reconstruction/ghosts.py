@@ -28,7 +28,7 @@ from numba import njit
 from app.components import Labeller
 
 from .carving import FG_VOTE
-from .occlusion_cells import _position
+from .grid import brick_position
 
 __all__ = ["exclusive_pixels", "ExplainedFilter"]
 
@@ -46,7 +46,7 @@ def exclusive_pixels(indices, labels, count, levels, brick_dims, lut, votes, own
     N = indices.shape[0]
     pos = np.empty(N, dtype=np.int64)
     for n in range(N):
-        pos[n] = _position(np.int64(indices[n, 0]), np.int64(indices[n, 1]), np.int64(indices[n, 2]), levels, nby,
+        pos[n] = brick_position(np.int64(indices[n, 0]), np.int64(indices[n, 1]), np.int64(indices[n, 2]), levels, nby,
                            nbz)
     for n in range(N):                       # owner: -1 nobody, a component, -2 several
         lab = labels[n]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["VoxelGrid", "BrickLayout", "radix_sort", "keys_to_indices"]
+__all__ = ["VoxelGrid", "BrickLayout", "radix_sort", "keys_to_indices", "brick_position"]
 
 
 @dataclass(frozen=True)
@@ -194,6 +194,22 @@ class BrickLayout:
             code |= ((loc[:, 1] >> bit) & 1) << (3 * bit + 1)
             code |= ((loc[:, 2] >> bit) & 1) << (3 * bit)
         return brick * (B ** 3) + code
+
+
+@njit(cache=True, nogil=True)
+def brick_position(i, j, k, levels, nby, nbz):
+    """Brick-layout position of voxel (i, j, k) (int64): the brick's C-order id times
+    ``B^3`` plus the Morton code of (i, j, k) within it (``nby``, ``nbz``: bricks along y, z)."""
+    B = np.int64(1) << levels
+    lmask = B - 1
+    brick = ((i >> levels) * nby + (j >> levels)) * nbz + (k >> levels)
+    li, lj, lk = i & lmask, j & lmask, k & lmask
+    code = np.int64(0)
+    for b in range(levels):
+        code |= ((li >> b) & 1) << (3 * b + 2)
+        code |= ((lj >> b) & 1) << (3 * b + 1)
+        code |= ((lk >> b) & 1) << (3 * b)
+    return (brick << (3 * levels)) + code
 
 
 @njit(cache=True, nogil=True)

@@ -55,23 +55,9 @@ import numpy as np
 from numba import njit
 
 from .carving import BG_VOTE, FG_VOTE, MAX_CAMERAS, VOTE_SHIFT
+from .grid import brick_position
 
 __all__ = ["CellOccluders", "select_and_learn", "MISSES_SHIFT"]
-
-
-@njit(cache=True, nogil=True)
-def _position(i, j, k, levels, nby, nbz):
-    """Brick-layout position of voxel (i, j, k) (bit interleaving, as :mod:`.consensus`)."""
-    B = np.int64(1) << levels
-    lmask = B - 1
-    brick = ((i >> levels) * nby + (j >> levels)) * nbz + (k >> levels)
-    li, lj, lk = i & lmask, j & lmask, k & lmask
-    code = np.int64(0)
-    for b in range(levels):
-        code |= ((li >> b) & 1) << (3 * b + 2)
-        code |= ((lj >> b) & 1) << (3 * b + 1)
-        code |= ((lk >> b) & 1) << (3 * b)
-    return (brick << (3 * levels)) + code
 
 
 #: bit of a key above which :func:`select_and_learn` stores the voxel's misses
@@ -110,7 +96,7 @@ def select_and_learn(keys, shift_i, shift_j, levels, brick_dims, lut, votes, dep
             i = key >> shift_i
             j = (key >> shift_j) & mask_j
             k = key & mask_k
-            p = _position(i, j, k, levels, nby, nbz)
+            p = brick_position(i, j, k, levels, nby, nbz)
             nbg = 0
             for c in range(n_cams):
                 if votes[lut[p, c]] == BG_VOTE:
@@ -131,7 +117,7 @@ def select_and_learn(keys, shift_i, shift_j, levels, brick_dims, lut, votes, dep
         i = key >> shift_i
         j = (key >> shift_j) & mask_j
         k = key & mask_k
-        p = _position(i, j, k, levels, nby, nbz)
+        p = brick_position(i, j, k, levels, nby, nbz)
         total = 0
         for c in range(n_cams):
             total += votes[lut[p, c]]
