@@ -187,6 +187,7 @@ class Worker:
         self.ledger.journal = self._journal
         self.input_ended = False             # True once this worker's input has truly ended
         self.incarnation = 0                 # restarts of this worker within the run
+        self.early_signals: list[int] = []   # stop signals received while the process loaded (worker command)
         self.exit_code = EXIT_ENDED
         self._lock = threading.Lock()
         self._publish_lock = threading.Lock()
@@ -210,7 +211,8 @@ class Worker:
     def subscriptions(self) -> list[str]:
         """Key expressions to subscribe to (default: the consumed stages)."""
         keys = []
-        for stage in self.CONSUMES:
+        consumed = self.consumes(self.spec)
+        for stage in [*self.CONSUMES, *sorted(consumed - set(self.CONSUMES))]:
             if stage == "stats":
                 continue  # stats are delivered through on_stats
             if stage in self.PER_CAMERA and self.cameras() is not None:
@@ -406,7 +408,7 @@ class Worker:
             self.inbox.wake()
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
-        for signum in list(getattr(self, "early_signals", ())):   # received while the worker loaded
+        for signum in list(self.early_signals):   # received while the worker loaded
             stop(signum, None)
 
     def _watch_launcher(self) -> None:

@@ -222,7 +222,8 @@ class Grabber(Worker):
             self._acks = {n: index - 1 for n in self._ack_names}
             self._outs = {n: index - 1 for n in self._ack_names}
             self._missing_since: dict[str, float] = {}
-            self._back_since: dict[str, float] = {}
+            self._back_since: dict[str, float] = {}   # workers back from a crash, catching up
+            self._hold_until = 0.0
             self._upstream = self._upstream_stages()
         need = index - self.params["window"]
         t0 = time.perf_counter()
@@ -236,7 +237,7 @@ class Grabber(Worker):
                     # hold new frames until the kept ones were sent again (``REPLAY_DELAY_S``):
                     # a sink that keeps results acknowledges nothing, and would get them after
                     # newer frames, or not at all once they had left the workers' replay buffers
-                    self._hold_until = max(getattr(self, "_hold_until", 0.0), now + RESUME_HOLD_S)
+                    self._hold_until = max(self._hold_until, now + RESUME_HOLD_S)
                 self._was_alive = alive
                 for n, since in list(self._back_since.items()):
                     if self._acks.get(n, -1) >= self._required(n, need):
@@ -258,7 +259,7 @@ class Grabber(Worker):
                 waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < self._required(n, need)]
                 waiting += [n for n in self._ack_names + self._keepers
                             if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
-                if now < getattr(self, "_hold_until", 0.0):
+                if now < self._hold_until:
                     waiting.append("workers sending frames again")
                 if not waiting:
                     break

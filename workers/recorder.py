@@ -107,11 +107,8 @@ class Recorder(Worker):
 
     @classmethod
     def consumes(cls, spec) -> set[str]:
+        """The result streams, and the voxels with ``voxels: true``."""
         return super().consumes(spec) | ({"voxels"} if spec.params.get("voxels") else set())
-
-    def subscriptions(self) -> list[str]:
-        keys = super().subscriptions()
-        return keys + [self.keys.voxels()] if self.params["voxels"] else keys
 
     def setup(self) -> None:
         if not self.layout.run.out:
