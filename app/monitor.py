@@ -35,6 +35,7 @@ class StageRow:
     busy: float
     final: bool
     age_s: float
+    frames_out: int = 0   # put out since the stage started
 
     @property
     def processing(self) -> bool:
@@ -76,7 +77,7 @@ class PipelineView:
                 dropped=f.get("frames_dropped", 0),
                 missing=f.get("frames_missing", 0) if final else f.get("frames_lost", 0),
                 cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
-                final=final, age_s=now - seen))
+                final=final, age_s=now - seen, frames_out=int(f.get("frames_out", 0) or 0)))
         rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
         return rows
 
@@ -96,16 +97,19 @@ class PipelineView:
         last = self.limiting(rows)
         if last is None or not self.recording_fps:
             return None
-        if not any(r.fps_out > 0 or r.final for r in rows if r.processing):
+        # start-up lasts until every stage has put out its first frame (a stage still loading
+        # its kernels on its first frame is not the bottleneck of a running pipeline)
+        if not all(r.fps_out > 0 or r.frames_out > 0 or r.final for r in rows if r.processing):
             return None
         return last.fps_out / self.recording_fps
 
     def bottleneck(self, rows=None) -> StageRow | None:
-        """The busiest processing stage (ties: the one that drops more)."""
+        """The busiest processing stage (ties: the one that drops more, then the one that puts
+        out fewer frames: of two stages working flat out, the slower holds the pipeline)."""
         procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
         if not procs:
             return None
-        return max(procs, key=lambda r: (round(r.busy, 2), r.dropped))
+        return max(procs, key=lambda r: (round(r.busy, 2), r.dropped, -r.fps_out))
 
     def tracks(self) -> int | None:
         """People tracked now (the ``tracks`` figure of the tracking stage), or None."""

@@ -36,6 +36,18 @@ def test_view_waits_until_frames_flow():
     assert "WAITING" in view.table().upper()
 
 
+def test_view_waits_until_every_stage_has_put_out_a_frame():
+    """Start-up: a stage still on its first frame (loading kernels) is not yet running, so
+    the stage ahead of it, busy with the same warm-up, is not named the bottleneck."""
+    view = PipelineView()
+    view.update(_stats("grabber", 0, 25.0, 0.05, fps_recording=25.0))
+    view.update(_stats("segmentation", 1, 3.0, 1.0))
+    view.update(_stats("slow", 2, 0.0, 0.4))
+    assert view.line().startswith("rtf=- verdict=waiting")
+    view.update(_stats("slow", 2, 1.0, 1.0))
+    assert view.line().startswith("rtf=0.04 verdict=behind bottleneck=slow")
+
+
 def _monitor_lines(stdout):
     out = []
     for ln in stdout.splitlines():
