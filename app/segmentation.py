@@ -324,6 +324,14 @@ def camera_segmenter(params: SegmentationParams, background: np.ndarray | None, 
     return CameraSegmenter(params, background, shadow_region=region)
 
 
+def warm_up(params: SegmentationParams, camera) -> None:
+    """One throw-away frame through a model like a camera's (MOG2, the shadow kernel, the
+    morphology), so the first real frame does not pay for loading the kernels."""
+    image = np.zeros((camera.height, camera.width, 3), dtype=np.uint8)
+    seg = CameraSegmenter(params, image)
+    seg.apply(image + 40)
+
+
 def matched_scale(calibration, voxel_size: float, pixels: float = 1.25) -> int:
     """The mask downscale (a power of two) at which a voxel still spans about
     ``pixels`` pixels, seen from the median camera-to-room-centre distance."""

@@ -250,7 +250,9 @@ def test_a_run_over_mutual_tls_with_a_remote_worker_admits_it_and_not_an_intrude
     started by hand as on another host; a session with another CA's certificate sees nothing."""
     shutil.copytree(certs / "room", tmp_path / "tls")
     layout = yaml.safe_load((ROOT / "deploy/layouts/local.yaml").read_text())
-    layout["workers"] = [w for w in layout["workers"] if w["kind"] != "viewer"]
+    # the spine (the bus is the matter here, not the later stages' first-frame kernels)
+    layout["workers"] = [w for w in layout["workers"] if w["kind"] in ("grabber", "segmentation", "reconstruction",
+                                                                       "recorder", "monitor")]
     for w in layout["workers"]:
         if w["name"] == "segmentation":
             w["host"] = "camera-pc"        # started by hand below, as on another host
@@ -276,7 +278,7 @@ def test_a_run_over_mutual_tls_with_a_remote_worker_admits_it_and_not_an_intrude
             time.sleep(0.05)
         remote = start_smartroom("worker", "segmentation", "--layout", out / "layout.yaml")
         try:
-            _, err = proc.communicate(timeout=120)
+            _, err = proc.communicate(timeout=240)
             remote.communicate(timeout=30)
         finally:
             for p in (proc, remote):

@@ -537,7 +537,13 @@ def test_live_cameras_that_all_stop_end_the_stream_with_a_reason(tmp_path):
     s = stats_of(out)
     assert s["complete"] is False and any("every live camera stopped delivering" in x for x in s["reasons"])
     assert (out / "voxels.bin").is_file() and not list(out.glob("*.partial"))
-    assert len(voxel_frames(out / "voxels.bin")) >= 10
+    # live stages may drop frames; every frame is accounted for: received or counted missing,
+    # put out or counted dropped (segmentation builds its models and kernels before it is
+    # alive, so an idle or loaded machine writes all 20 here)
+    for name, st in s["stages"].items():
+        assert st["frames_in"] + st["frames_missing"] == st["frames_expected"], name
+        assert st["frames_out"] + st["frames_dropped"] == st["frames_in"], name
+    assert len(voxel_frames(out / "voxels.bin")) == s["stages"]["recorder"]["frames_out"] >= 10
 
 
 def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
@@ -562,6 +568,8 @@ def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
     assert s["complete"] is True and s["stages"]["grabber"]["restarts"] == 1
     assert s["stages"]["grabber"]["frames_out"] == 150
     frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
-    assert frames == sorted(set(frames)) and frames[-1] == 149
+    # numbered on from the restart (never twice, never past the 150 grabbed); the last frames
+    # too may be given up by a live stage (a view late; counted)
+    assert frames == sorted(set(frames)) and 140 <= frames[-1] <= 149
     # live stages may drop frames to keep up (counted); what was written is what the recorder says
     assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 75

@@ -187,7 +187,7 @@ def test_live_cameras_and_a_camera_that_stops(tmp_path, spine_layout):
     # with cam1 gone a frame has one camera, fewer than min_views 2: dropped and counted, never
     # published empty
     rec = s["workers"]["reconstruction"]
-    assert rec["frames_too_few_views"] >= 25
+    assert rec["frames_too_few_views"] >= 10
     assert rec["frames_out"] + rec["frames_too_few_views"] == rec["frames_in"]
 
 

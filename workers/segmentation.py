@@ -13,7 +13,7 @@ from __future__ import annotations
 from app.messages import Frame, Mask
 from app.recording import Recording
 from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmenter, estimate_background_robust,
-                              matched_scale, shrink)
+                              matched_scale, shrink, warm_up)
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
@@ -77,9 +77,13 @@ class Segmentation(Worker):
         self.scale, self.colour_scale = scales(self.spec, self.layout, calib)
         self.seg_params = SegmentationParams.from_params({**self.params, "scale": self.scale})
         self.segmenters: dict[str, CameraSegmenter] = {}
-        if self.recording is not None:  # build the models before the first frame arrives
-            for cam in self.cameras() or self.recording.cameras:
-                self._segmenter(cam)
+        # build the models before the first frame arrives (live: a model that learns from the
+        # stream), and run the kernels once, so a live run's first frames are not lost to it
+        cams = self.cameras() or (self.recording.cameras if self.recording else self.known_cameras) or []
+        for cam in cams:
+            self._segmenter(cam)
+        if cams and calib is not None:
+            warm_up(self.seg_params, calib.camera(cams[0]))
 
     def _background(self, cam: str):
         if self.recording is None:
