@@ -25,7 +25,10 @@ to empty space reachable from outside, or ``boundary``, every voxel with an empt
 visibility flags are the surface of the whole hull); ``all`` the whole hull with its
 flags (the thesis: one hull for everything). The tracks still come from the whole hull
 (the tracker and its person classifier need it). Voxels without ``misses`` (an older
-reconstruction, ``misses: false``) are posed whole.
+reconstruction, ``misses: false``) are posed whole. ``tolerant`` is the consensus plus
+the one-miss voxels below ``tolerant_low`` (m) within ``tolerant_near`` (m) of a track, in
+frames where at least ``tolerant_views`` cameras still see them (the shins and feet the
+consensus carves; :mod:`app.pose.selection`).
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import Poses, Tracks, Voxels
+from app.pose.selection import pose_subset
 from workers.base import Worker
 
 KEEP_FRAMES = 8
@@ -68,16 +72,21 @@ class Pose(Worker):
         "surface": "outer",         # V^S of the consensus subset: outer (no enclosed cavities) or boundary (earlier)
         "stature": "axis",          # the blob's top for the stature: near the body axis, or top (anywhere; earlier)
         "stance": 0.03,             # m: ankles under the hips while the track stands still; 0 = off
-        "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull
+        "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull;
+                                    # tolerant: consensus + low one-miss voxels near a track (app.pose.selection)
+        "tolerant_low": 0.2,        # m: tolerant keeps one-miss voxels below this height
+        "tolerant_near": 0.6,       # m: ... within this distance (floor plane) of a track
+        "tolerant_views": 3,        # ... where at least this many cameras see them (frames of >= views + 1 cameras)
         "seed": 0,
     }
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
-               "ik": ("table", "straight"), "voxels": ("consensus", "all"),
+               "ik": ("table", "straight"), "voxels": ("consensus", "tolerant", "all"),
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "gamma_budget": (0, 5000), "gamma_min": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
-              "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0)}
+              "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0),
+              "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64)}
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -160,10 +169,11 @@ class Pose(Worker):
         est = self._estimator(vox)
         centres = vox.centres()
         surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
-        misses = vox.misses
-        if self.params["voxels"] == "consensus" and misses is not None and len(misses) == len(centres) \
-                and len(misses):
-            keep = misses == 0
+        p = self.params
+        keep = pose_subset(vox.misses, centres, positions, mode=p["voxels"], cameras=len(vox.cameras),
+                           low=float(p["tolerant_low"]), near=float(p["tolerant_near"]),
+                           views=int(p["tolerant_views"]))
+        if keep is not None:
             centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
             self.kept.append(float(keep.mean()))
         # every track takes part in the voxel ownership; only this worker's share is posed

@@ -1,0 +1,57 @@
+"""Which of a frame's voxels the pose stage poses on.
+
+The pipeline's reconstruction carves with tolerance ``k = 1`` (§2.2.4: a voxel one
+camera misses stays), so that the tracker keeps a person a camera loses; that hull is
+5-7x the body and holds no limb shape (docs/benchmarks.md, "Pose on the reconstructed
+hull"). The pose stage therefore poses on the *consensus* subset, the voxels no camera
+misses (``Voxels.misses == 0``, the ``k = 0`` hull). That subset loses thin, fast
+limbs where one camera's mask is thin or broken there: walk1's shins (158 of 572 true
+shin voxels kept at frame 30), a foot a camera sees behind furniture.
+
+``tolerant`` keeps, besides the consensus, the one-miss voxels (``misses == 1``) that
+are likely a limb and not the phantom of the ``k = 1`` hull: below ``low`` (m: shins and
+feet), within ``near`` (m, horizontally) of a track, and only where at least ``views``
+cameras still call them foreground (frames of ``views + 1`` cameras or more). Measured
+through the pipeline (docs/benchmarks.md, "Pipeline accuracy, round 2"): 0.2 m gains on
+gesture1, walk1 and meeting3; 0.3 m and higher add more phantom than limb (meeting3's
+4 cm hull of 4 cameras loses 0.03). The phantom cones of ``k = 1`` open upwards and
+outwards from the body's silhouette, so near the floor and next to the body they are
+narrowest. (Also measured and not kept: an attachment test, one-miss voxels reached from
+the consensus subset through 26-neighbours.) The thesis (§2.2.4) poses on one hull;
+this subset is ours.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SUBSETS", "pose_subset"]
+
+SUBSETS = ("consensus", "tolerant", "all")
+
+
+def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.ndarray,
+                mode: str = "consensus", cameras: int = 5, low: float = 0.3, near: float = 0.6,
+                views: int = 3) -> np.ndarray | None:
+    """Boolean mask of the voxels to pose on, or None for all of them (``mode`` ``all``, or
+    voxels without ``misses``). ``misses`` (N,) cameras that miss each voxel, ``centres``
+    (N, 3) m, ``positions`` (T, 3) the tracks, ``cameras`` the frame's camera count."""
+    if mode == "all" or misses is None or len(misses) != len(centres) or not len(misses):
+        return None
+    keep = misses == 0
+    if mode == "consensus":
+        return keep
+    if mode != "tolerant":
+        raise ValueError(f"voxel subset {mode!r} is not one of {', '.join(SUBSETS)}")
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if cameras - 1 < views or len(positions) == 0:
+        return keep
+    cand = (misses == 1) & (centres[:, 2] < low)
+    if not cand.any():
+        return keep
+    where = np.flatnonzero(cand)
+    d = np.min(np.hypot(centres[where, 0, None] - positions[None, :, 0],
+                        centres[where, 1, None] - positions[None, :, 1]), axis=1)
+    where = where[d < near]
+    keep = keep.copy()
+    keep[where] = True
+    return keep
