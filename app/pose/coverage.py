@@ -53,6 +53,15 @@ under its hip, horizontally, and beyond it costs a one-sided Gaussian of deviati
 ``stance`` (m). Without it the leg the hull has no foot of drifts: on gesture1 the k = 0
 hull has no right foot and the right ankle sat 70 mm sideways (within 100 mm in
 35-65 % of the frames, 91-94 % with the prior); 0 switches it off.
+
+A fifth, the *ground* prior (``ground``, m; applied with the floor prior): no ankle below
+its standing height, ``sum_ankles 0.5 ((0.039 H - z)_+ / ground)^2``. The floor prior only
+pulls the lower ankle down; nothing held an ankle up, and on the pipeline's hulls (the
+swing leg's shin carved by one camera) the posed ankles went 3-5 cm into the floor
+(walk1: median 64 mm against the true 114 mm, 5 % under 38 mm where the true ones are
+never under 69 mm; meeting3 5 % under 13 mm). Through the pipeline, 0.01 m: MMTP walk1
+40-42 -> 36-39 mm, meeting3 43-45 -> 40-41 mm, MMTA meeting3 +0.02 (docs/benchmarks.md,
+"Pipeline accuracy, round 2"); 0 switches it off (the thesis has none).
 """
 from __future__ import annotations
 
@@ -64,7 +73,8 @@ from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
 from app.pose.model import joints_subset, segments_needed, standing_root_height
 
-__all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "STANCE_FREE"]
+__all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "ground_penalty",
+           "STANCE_FREE"]
 
 _ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.int64)
 _ANKLE_NEED = segments_needed(_ANKLES)   # forward kinematics of the legs only
@@ -102,17 +112,35 @@ def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float 
     return out
 
 
-def leg_penalties(states: np.ndarray, height: float, floor: float, both: float = 0.0, stance: float = 0.0):
+def leg_penalties(states: np.ndarray, height: float, floor: float, both: float = 0.0, stance: float = 0.0,
+                  ground: float = 0.0):
     """:func:`floor_penalty` (deviation ``floor``, ``both``) and, when ``stance > 0``,
     :func:`stance_penalty` (else None) from one forward kinematics of the legs and one
     loop: the same numbers as the two functions (the ankles are the same whichever
-    joints are asked for; the operations are numpy's, one by one)."""
+    joints are asked for; the operations are numpy's, one by one). ``ground > 0`` adds
+    :func:`ground_penalty` to the first."""
     j = joints_subset(states, height, _LEGS, _LEGS_NEED)
     fl = np.empty(len(j))
     st = np.empty(len(j)) if stance > 0 else None
     _leg_penalties(j, 0.039 * height, float(floor), float(both), 0.9 * (standing_root_height(height) - 0.025 * height),
                    float(stance), STANCE_FREE, fl, st if st is not None else fl[:0])
+    if ground > 0:
+        fl += _ground(j[:, 1::2, 2], 0.039 * height, ground)
     return fl, st
+
+
+def _ground(z: np.ndarray, rest: float, sigma: float) -> np.ndarray:
+    return 0.5 * ((np.maximum(rest - z, 0.0) / sigma) ** 2).sum(axis=1)
+
+
+def ground_penalty(states: np.ndarray, height: float, sigma: float) -> np.ndarray:
+    """``sum_ankles 0.5 ((0.039 H - z)_+ / sigma)^2``: no ankle below its standing height
+    (the foot is under it; the floor prior only pulls the lower ankle *down* to that
+    height). On the pipeline's hulls the swing leg, its shin carved by one camera, was
+    posed with the ankle 3-5 cm into the floor (walk1: 5 % of the posed ankles under
+    38 mm, the true ones never under 69 mm; meeting3 13 mm)."""
+    j = joints_subset(states, height, _ANKLES, _ANKLE_NEED)
+    return _ground(j[:, :, 2], 0.039 * height, sigma)
 
 
 @njit(cache=True, nogil=True)
@@ -173,6 +201,7 @@ class CoverageScorer(Scorer):
         self.heading = None        # (yaw along the track's velocity, deviation rad) or None
         self.both_feet = 0.0       # m: deviation of the higher ankle's floor prior while standing; 0 = off
         self.stance = 0.0          # m: deviation of the stance prior while standing (set with both_feet); 0 = off
+        self.ground = 0.0          # m: deviation of the ground prior (no ankle below its standing height); 0 = off
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
         act = np.ones(len(PARTS), dtype=bool) if active is None else np.asarray(active, dtype=bool)
@@ -184,7 +213,7 @@ class CoverageScorer(Scorer):
             lw = lw - 0.5 * miss ** 2 / self.sigma2
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
             floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
-                                          self.stance if self.both_feet > 0 else 0.0)
+                                          self.stance if self.both_feet > 0 else 0.0, self.ground)
             lw = lw - floor
             if stance is not None:
                 lw = lw - stance

@@ -64,6 +64,7 @@ class PoseSettings:
     feet: float = 0.05              # m: while the track stands still, the higher ankle's floor prior too; 0 = off
     stature: str = "axis"           # the blob's top for the stature: near the body axis (axis) or anywhere (top)
     stance: float = 0.03            # m: while the track stands still, the ankles under the hips (app.pose.coverage); 0 = off
+    ground: float = 0.01            # m: no ankle below its standing height (app.pose.coverage.ground_penalty); 0 = off
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
     seed: int = 0
@@ -78,8 +79,8 @@ class PoseSettings:
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.feet >= 0
-                and self.stance >= 0):
-            raise ValueError("coverage, floor, feet, heading and stance must be >= 0 (0 switches them off)")
+                and self.stance >= 0 and self.ground >= 0):
+            raise ValueError("coverage, floor, feet, heading, stance and ground must be >= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
@@ -161,6 +162,7 @@ class PersonPose:
         self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
+        self.scorer.ground = s.ground if s.floor > 0 else 0.0
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):
             self.filter = SHBMAPF(gamma=s.gamma, **kw)
