@@ -74,7 +74,10 @@ class Pose(Worker):
         "surface": "outer",         # V^S of the consensus subset: outer (no enclosed cavities) or boundary (earlier)
         "stature": "axis",          # the blob's top for the stature: near the body axis, or top (anywhere; earlier)
         "stance": 0.03,             # m: ankles under the hips while the track stands still; 0 = off
-        "ground": 0.01,             # m: no ankle below its standing height (with floor > 0); 0 = off
+        "ground": 0.01,             # m: no ankle below its standing height (with floor > 0); 0 = off (the offline
+                                    # core's default: on true-body voxels it costs gesture1 0.01; docs/benchmarks.md)
+        "anchor": 0.0,              # m: deviation of the root beyond anchor_free from its track; 0 = off
+        "anchor_free": 0.25,        # m
         "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull;
                                     # tolerant: consensus + low one-miss voxels near a track (app.pose.selection)
         "tolerant_low": 0.2,        # m: tolerant keeps one-miss voxels below this height
@@ -89,6 +92,7 @@ class Pose(Worker):
               "gamma_budget": (0, 5000), "gamma_min": (2, 500),
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
+              "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64)}
 
     def setup(self) -> None:
@@ -104,6 +108,7 @@ class Pose(Worker):
                                          ik=str(p["ik"]),
                                          reach=float(p["reach"]), surface=str(p["surface"]), stature=str(p["stature"]),
                                          stance=float(p["stance"]), ground=float(p["ground"]),
+                                         anchor=float(p["anchor"]), anchor_free=float(p["anchor_free"]),
                                          seed=int(p["seed"]))
             self.settings.validate()
         except (TypeError, ValueError) as exc:

@@ -202,6 +202,7 @@ class CoverageScorer(Scorer):
         self.both_feet = 0.0       # m: deviation of the higher ankle's floor prior while standing; 0 = off
         self.stance = 0.0          # m: deviation of the stance prior while standing (set with both_feet); 0 = off
         self.ground = 0.0          # m: deviation of the ground prior (no ankle below its standing height); 0 = off
+        self.anchor = None         # (track x, y, free radius m, deviation m) or None: the root near its track
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
         act = np.ones(len(PARTS), dtype=bool) if active is None else np.asarray(active, dtype=bool)
@@ -217,6 +218,11 @@ class CoverageScorer(Scorer):
             lw = lw - floor
             if stance is not None:
                 lw = lw - stance
+        if self.anchor is not None:
+            ax, ay, free, sigma = self.anchor
+            st = np.asarray(states)
+            d = np.hypot(st[:, 0] - ax, st[:, 1] - ay)
+            lw = lw - 0.5 * (np.maximum(d - free, 0.0) / sigma) ** 2
         if self.heading is not None:
             yaw, sigma = self.heading
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))

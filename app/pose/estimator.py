@@ -64,7 +64,10 @@ class PoseSettings:
     feet: float = 0.05              # m: while the track stands still, the higher ankle's floor prior too; 0 = off
     stature: str = "axis"           # the blob's top for the stature: near the body axis (axis) or anywhere (top)
     stance: float = 0.03            # m: while the track stands still, the ankles under the hips (app.pose.coverage); 0 = off
-    ground: float = 0.01            # m: no ankle below its standing height (app.pose.coverage.ground_penalty); 0 = off
+    ground: float = 0.0             # m: no ankle below its standing height (app.pose.coverage.ground_penalty); 0 = off
+                                    # (the pose worker: 0.01, for the hulls; on true-body voxels it costs gesture1 0.01)
+    anchor: float = 0.0             # m: the root within anchor_free of its track, beyond a Gaussian of this deviation; 0 = off
+    anchor_free: float = 0.25       # m
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     height_frames: int = 5
     seed: int = 0
@@ -79,7 +82,7 @@ class PoseSettings:
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.feet >= 0
-                and self.stance >= 0 and self.ground >= 0):
+                and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0):
             raise ValueError("coverage, floor, feet, heading, stance and ground must be >= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
@@ -197,6 +200,7 @@ class PersonPose:
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
         self.scorer.set_observation(obs)
         self.scorer.heading = None
+        self.scorer.anchor = (float(position[0]), float(position[1]), s.anchor_free, s.anchor) if s.anchor > 0 else None
         # standing still (smoothed track speed < 0.3 m/s): both feet down (the k = 0 hull
         # often lacks a foot a camera sees behind furniture; gesture1's right ankle)
         standing = self.velocity is not None and np.hypot(*self.velocity[:2]) < 0.3
