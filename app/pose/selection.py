@@ -12,9 +12,10 @@ shin voxels kept at frame 30), a foot a camera sees behind furniture.
 are likely a limb and not the phantom of the ``k = 1`` hull: below ``low`` (m: shins and
 feet), within ``near`` (m, horizontally) of a track, and only where at least ``views``
 cameras still call them foreground (frames of ``views + 1`` cameras or more). Measured
-through the pipeline (docs/benchmarks.md, "Pipeline accuracy, round 2"): 0.2 m gains on
-gesture1, walk1 and meeting3; 0.3 m and higher add more phantom than limb (meeting3's
-4 cm hull of 4 cameras loses 0.03). The phantom cones of ``k = 1`` open upwards and
+through the pipeline (docs/benchmarks.md, "Pipeline accuracy, round 2"): 0.2 m gained on
+gesture1, walk1 and meeting3 with pose seeds 0-2 and lost on all three with seeds 3-5, so
+the pose worker keeps ``consensus``; 0.3 m and higher add more phantom than limb
+(meeting3's 4 cm hull of 4 cameras loses 0.03-0.07). The phantom cones of ``k = 1`` open upwards and
 outwards from the body's silhouette, so near the floor and next to the body they are
 narrowest. (Also measured and not kept: an attachment test, one-miss voxels reached from
 the consensus subset through 26-neighbours.) The thesis (§2.2.4) poses on one hull;
