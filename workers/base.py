@@ -54,7 +54,8 @@ __all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_TERMINATED", "EN
 STATS_PERIOD_S = 1.0
 STATE_PERIOD_S = 0.5
 END_GRACE_S = 0.1      # quiet time after the upstream left the bus (its data came before it left)
-EOS_CONFIRM_S = 3.0      # an end of stream counts when its sender leaves the bus within this time
+EOS_CONFIRM_S = 10.0     # an end of stream counts when its sender leaves the bus within this time (a loaded
+                         # machine may take seconds to carry the liveliness change of a worker on another host)
 LOSSLESS_DEPTH = 256     # inbox depth per key offline (flow control keeps it far below)
 MAX_KEYS = 64            # distinct keys an inbox holds queues for
 REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent again to a consumer that restarted
