@@ -39,3 +39,12 @@ def test_leg_penalties_add_the_ground_prior_to_the_floor_prior():
     without, _ = leg_penalties(states, H, 0.02)
     with_ground, _ = leg_penalties(states, H, 0.02, ground=0.01)
     assert np.allclose(with_ground, without + ground_penalty(states, H, 0.01))
+
+
+def test_anchor_penalty_keeps_the_root_near_its_track_only_beyond_the_free_radius():
+    from app.pose.coverage import anchor_penalty
+    states = np.array([neutral_state(H, (1.0, 1.0, None)), neutral_state(H, (1.2, 1.0, None)),
+                       neutral_state(H, (1.0, 1.35, None))])
+    pen = anchor_penalty(states, 1.0, 1.0, 0.25, 0.05)
+    assert pen[0] == 0 and pen[1] == 0                   # within 0.25 m of the track: free
+    assert abs(pen[2] - 0.5 * (0.10 / 0.05) ** 2) < 1e-9  # 0.35 m away: 0.1 m beyond, 2 deviations

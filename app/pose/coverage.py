@@ -64,7 +64,8 @@ never under 69 mm; meeting3 5 % under 13 mm). Through the pipeline, 0.01 m: MMTP
 "Pipeline accuracy, round 2"); 0 switches it off (the thesis has none).
 
 A sixth, the *anchor* (``anchor``: (x, y, free, deviation) of the person's track, set by
-the estimator when ``PoseSettings.anchor > 0``; off by default): the root farther than
+the estimator when ``PoseSettings.anchor > 0``; on in the pose worker, 0.05 m, off in the
+offline core): the root farther than
 ``free`` from its track, horizontally, costs a Gaussian of that deviation. Against a phantom
 that holds the body away from its person (meeting3's door: with the ground prior the pose
 stood in the phantom 0.5-0.7 m from the person for 12 frames); meeting3 0.822 -> 0.842,
@@ -81,7 +82,7 @@ from app.pose.likelihood import Scorer, log_likelihood, normalise
 from app.pose.model import joints_subset, segments_needed, standing_root_height
 
 __all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "ground_penalty",
-           "STANCE_FREE"]
+           "anchor_penalty", "STANCE_FREE"]
 
 _ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.int64)
 _ANKLE_NEED = segments_needed(_ANKLES)   # forward kinematics of the legs only
@@ -148,6 +149,14 @@ def ground_penalty(states: np.ndarray, height: float, sigma: float) -> np.ndarra
     38 mm, the true ones never under 69 mm; meeting3 13 mm)."""
     j = joints_subset(states, height, _ANKLES, _ANKLE_NEED)
     return _ground(j[:, :, 2], 0.039 * height, sigma)
+
+
+def anchor_penalty(states: np.ndarray, x: float, y: float, free: float, sigma: float) -> np.ndarray:
+    """``0.5 ((d - free)_+ / sigma)^2`` with ``d`` the root's horizontal distance from its
+    track at ``(x, y)``: the pose stays with its person, not with a phantom beside it."""
+    st = np.asarray(states)
+    d = np.hypot(st[:, 0] - x, st[:, 1] - y)
+    return 0.5 * (np.maximum(d - free, 0.0) / sigma) ** 2
 
 
 @njit(cache=True, nogil=True)
@@ -226,10 +235,7 @@ class CoverageScorer(Scorer):
             if stance is not None:
                 lw = lw - stance
         if self.anchor is not None:
-            ax, ay, free, sigma = self.anchor
-            st = np.asarray(states)
-            d = np.hypot(st[:, 0] - ax, st[:, 1] - ay)
-            lw = lw - 0.5 * (np.maximum(d - free, 0.0) / sigma) ** 2
+            lw = lw - anchor_penalty(states, *self.anchor)
         if self.heading is not None:
             yaw, sigma = self.heading
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))
