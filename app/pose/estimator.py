@@ -83,7 +83,8 @@ class PoseSettings:
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.feet >= 0
                 and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0):
-            raise ValueError("coverage, floor, feet, heading, stance and ground must be >= 0 (0 switches them off)")
+            raise ValueError("coverage, floor, feet, heading, stance, ground, anchor and anchor_free must be >= 0 "
+                             "(0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
@@ -165,7 +166,7 @@ class PersonPose:
         self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
-        self.scorer.ground = s.ground if s.floor > 0 else 0.0
+        self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):
             self.filter = SHBMAPF(gamma=s.gamma, **kw)
