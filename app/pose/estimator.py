@@ -159,7 +159,8 @@ class PersonPose:
         self.velocity = None
         self.frames = 0
 
-    def _make(self, height: float) -> None:
+    def build(self, height: float) -> None:
+        """The body, its fleshed model and scorer and a fresh filter for stature ``height``."""
         s = self.s
         self.height = height
         self.model = BodyModel(height)
@@ -189,12 +190,12 @@ class PersonPose:
         if self.filter is None:
             if len(self.tops) < 1:
                 return None
-            self._make(float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05)))
+            self.build(float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05)))
         elif self.frames < s.height_frames and len(self.tops):
             h = float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05))
             if abs(h - self.height) > 0.015:   # the stature grows with more views of the top
                 keep = self.filter
-                self._make(h)
+                self.build(h)
                 self.filter.particles = keep.particles
         if gamma is not None and isinstance(self.filter, SHBMAPF):
             self.filter.set_gamma(gamma)

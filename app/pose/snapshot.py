@@ -1,0 +1,152 @@
+"""The state of a :class:`~app.pose.estimator.PoseEstimator` as plain arrays, so that a
+pose worker restarted after a crash carries on with every person's filter where its
+earlier incarnation left it (same particles, same random stream: offline, the poses
+after the restart are those of an undisturbed run).
+
+:func:`estimator_state` gives ``{name: ndarray}`` for :func:`numpy.savez` (no pickled
+objects: a snapshot is data, loading it runs no code); :func:`restore_estimator` builds
+an estimator from it, or raises :class:`SnapshotError` when it does not fit (another
+format, other settings, missing or malformed arrays).
+
+Per person: the track id, stature (and the tops it was read from), frames posed, the
+last track position and smoothed velocity, the state estimate, the random generator's
+state, the particle sets (SHBM-APF: one per model, with their sizes; APF: one) and,
+with DDM, the limb switch (which units are on, their last check and the scouts of the
+lost ones).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+
+import numpy as np
+
+from app.pose.estimator import PersonPose, PoseEstimator, PoseSettings
+from app.pose.filters import SHBMAPF
+from app.pose.flesh import LIMBS
+from app.pose.model import N_DOF
+
+__all__ = ["SnapshotError", "estimator_state", "restore_estimator"]
+
+FORMAT = "smartroom-pose-state/1"
+
+
+class SnapshotError(ValueError):
+    """A pose snapshot that cannot be taken over."""
+
+
+def _settings_key(settings: PoseSettings) -> str:
+    return json.dumps(asdict(settings), sort_keys=True, default=list)
+
+
+def estimator_state(est: PoseEstimator) -> dict[str, np.ndarray]:
+    """Everything :func:`restore_estimator` needs, as named arrays."""
+    arrays: dict[str, np.ndarray] = {}
+    people = []
+    for tid, p in est.people.items():
+        entry = {"id": int(tid), "tops": [float(t) for t in p.tops], "frames": int(p.frames),
+                 "height": None if p.height is None else float(p.height),
+                 "rng": p.rng.bit_generator.state, "filter": None}
+        for name in ("state", "last_position", "velocity"):
+            value = getattr(p, name)
+            if value is not None:
+                arrays[f"p{tid}.{name}"] = np.asarray(value, dtype=np.float64)
+        if p.filter is not None:
+            f = p.filter
+            if isinstance(f, SHBMAPF):
+                entry["filter"] = {"kind": "shbm", "sizes": [int(n) for n in f.sizes],
+                                   "sets": 0 if f.sets is None else len(f.sets)}
+                for i, s in enumerate(f.sets or []):
+                    arrays[f"p{tid}.set{i}"] = np.asarray(s, dtype=np.float64)
+            else:
+                entry["filter"] = {"kind": "apf", "sets": 0 if f.particles is None else 1}
+                if f.particles is not None:
+                    arrays[f"p{tid}.set0"] = np.asarray(f.particles, dtype=np.float64)
+            arrays[f"p{tid}.frozen"] = np.asarray(f.frozen, dtype=bool)
+        if p.switch is not None:
+            sw = p.switch
+            entry["switch"] = {"active": {u: bool(v) for u, v in sw.active.items()},
+                               "last": {u: [float(a), float(b)] for u, (a, b) in sw.last.items()},
+                               "scouts": sorted(sw.scouts)}
+            for u, s in sw.scouts.items():
+                arrays[f"p{tid}.scout.{u}"] = np.asarray(s, dtype=np.float64)
+        people.append(entry)
+    meta = {"format": FORMAT, "settings": _settings_key(est.settings), "people": people}
+    arrays["meta"] = np.array(json.dumps(meta))
+    return arrays
+
+
+def _particles(arrays, key: str, rows: int | None = None) -> np.ndarray:
+    if key not in arrays:
+        raise SnapshotError(f"pose snapshot: {key} is missing")
+    a = np.asarray(arrays[key])
+    if a.dtype != np.float64 or a.ndim != 2 or a.shape[1] != N_DOF or not np.isfinite(a).all() \
+            or (rows is not None and len(a) != rows) or len(a) == 0:
+        raise SnapshotError(f"pose snapshot: {key} is not a finite (N, {N_DOF}) particle set")
+    return a.copy()
+
+
+def _vector(arrays, key: str, n: int) -> np.ndarray | None:
+    if key not in arrays:
+        return None
+    a = np.asarray(arrays[key])
+    if a.dtype != np.float64 or a.shape != (n,) or not np.isfinite(a).all():
+        raise SnapshotError(f"pose snapshot: {key} is not a finite vector of {n}")
+    return a.copy()
+
+
+def restore_estimator(settings: PoseSettings, arrays) -> PoseEstimator:
+    """An estimator in the state :func:`estimator_state` saved, for ``settings`` (the
+    snapshot's settings must be the same); :class:`SnapshotError` if it does not fit."""
+    try:
+        meta = json.loads(str(np.asarray(arrays["meta"])[()]))
+    except (KeyError, ValueError, TypeError) as exc:
+        raise SnapshotError(f"pose snapshot: no readable meta ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise SnapshotError("pose snapshot: not a smartroom pose state")
+    if meta.get("settings") != _settings_key(settings):
+        raise SnapshotError("pose snapshot: made with other pose settings")
+    est = PoseEstimator(settings)
+    try:
+        for entry in meta["people"]:
+            tid = int(entry["id"])
+            p = PersonPose(settings, tid, np.random.default_rng([settings.seed, tid]))
+            p.rng.bit_generator.state = entry["rng"]
+            p.tops = [float(t) for t in entry["tops"]]
+            p.frames = int(entry["frames"])
+            p.state = _vector(arrays, f"p{tid}.state", N_DOF)
+            p.last_position = _vector(arrays, f"p{tid}.last_position", 3)
+            p.velocity = _vector(arrays, f"p{tid}.velocity", 3)
+            if entry["height"] is not None:
+                p.build(float(entry["height"]))
+                f, spec = p.filter, entry["filter"]
+                if spec["kind"] != ("shbm" if isinstance(f, SHBMAPF) else "apf"):
+                    raise SnapshotError("pose snapshot: made with another pose method")
+                if isinstance(f, SHBMAPF):
+                    sizes = [int(n) for n in spec["sizes"]]
+                    if len(sizes) != len(f.sizes) or spec["sets"] not in (0, len(sizes)):
+                        raise SnapshotError("pose snapshot: SHBM-APF sets do not fit")
+                    f.sizes = sizes
+                    if spec["sets"]:
+                        f.sets = [_particles(arrays, f"p{tid}.set{i}", n) for i, n in enumerate(sizes)]
+                elif spec["sets"]:
+                    f.particles = _particles(arrays, f"p{tid}.set0")
+                frozen = np.asarray(arrays.get(f"p{tid}.frozen", np.zeros(N_DOF, bool)))
+                if frozen.dtype != bool or frozen.shape != (N_DOF,):
+                    raise SnapshotError(f"pose snapshot: p{tid}.frozen is not {N_DOF} flags")
+                f.frozen = frozen.copy()
+                sw = entry.get("switch")
+                if (sw is None) != (p.switch is None):
+                    raise SnapshotError("pose snapshot: made with another pose method")
+                if sw is not None:
+                    if set(sw["active"]) != set(LIMBS):
+                        raise SnapshotError("pose snapshot: limb units do not fit")
+                    p.switch.active = {u: bool(v) for u, v in sw["active"].items()}
+                    p.switch.last = {u: (float(a), float(b)) for u, (a, b) in sw["last"].items()}
+                    p.switch.scouts = {u: _particles(arrays, f"p{tid}.scout.{u}") for u in sw["scouts"]}
+            est.people[tid] = p
+    except SnapshotError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SnapshotError(f"pose snapshot: malformed ({type(exc).__name__}: {exc})") from None
+    return est
