@@ -1,0 +1,98 @@
+"""A multi-tracker saved mid-scene (app.tracking.snapshot) and restored carries on exactly
+as if it had never stopped: what a restarted tracking worker relies on."""
+import io
+import json
+
+import numpy as np
+import pytest
+
+from app.tracking.blobs import ComponentAnalysis
+from app.tracking.classifier import load_tree
+from app.tracking.scene import OccupancyIndex, SceneFrame
+from app.tracking.snapshot import SnapshotError, restore_tracker, tracker_state
+from app.tracking.tracker import MultiTracker, TrackerParams
+from tests.test_tracking import DIMS, VS, crossing
+
+PARAMS = {"ss_colour": {}, "ss_raw": {}, "pf_colour": {"particles": 60}, "naive": {}}
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    """The crossing of tests/test_tracking.py (two people merge into one blob), as scenes."""
+    frames, _ = crossing(n=60)
+    tree = load_tree()
+    cca = ComponentAnalysis(DIMS, (0, 0, 0), VS, tree)
+    out = []
+    for v in frames:
+        labels, feats, person = cca(v.indices)
+        out.append(SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person, (0, 0, 0), VS,
+                              OccupancyIndex(DIMS)))   # a scene's column index lives in its OccupancyIndex
+    return out, tree
+
+
+def _through_file(arrays) -> dict:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    buf.seek(0)
+    with np.load(buf, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+@pytest.mark.parametrize("filt", sorted(PARAMS))
+def test_a_restored_tracker_carries_on_bit_for_bit(scenes, filt):
+    frames, tree = scenes
+    params = TrackerParams(filter=filt, **PARAMS[filt])
+    whole, first = MultiTracker(params, tree), MultiTracker(params, tree)
+    cut = 30                     # tracks confirmed, the two people about to merge
+    for sc in frames[:cut]:
+        whole.update(sc), first.update(sc)
+    assert len(first.tracks) == 2
+    arrays = _through_file(tracker_state(first, DIMS))
+    size = sum(a.nbytes for a in arrays.values())
+    assert size < 40_000, size   # sparse histograms: a few kB per track
+    del first
+    again = restore_tracker(TrackerParams(filter=filt, **PARAMS[filt]), tree, arrays, DIMS)
+    if filt != "naive":          # every attribute of a target is restored (none forgotten)
+        for a, b in zip(whole.tracks, again.tracks):
+            assert set(vars(a.target) if hasattr(a.target, "__dict__") else ()) == set(vars(b.target))
+    for sc in frames[cut:]:
+        ids_a, pos_a = whole.update(sc)
+        ids_b, pos_b = again.update(sc)
+        assert np.array_equal(ids_a, ids_b) and np.array_equal(pos_a, pos_b), sc.frame
+    assert whole.next_id == again.next_id
+
+
+def test_a_snapshot_that_does_not_fit_is_refused(scenes):
+    frames, tree = scenes
+    t = MultiTracker(TrackerParams(), tree)
+    for sc in frames[:12]:
+        t.update(sc)
+    good = _through_file(tracker_state(t, DIMS))
+    restore_tracker(TrackerParams(), tree, good, DIMS)   # fits
+
+    def bad(**change):
+        a = dict(good)
+        a.update(change)
+        return a
+
+    meta = json.loads(str(good["meta"][()]))
+    cases = {
+        "other filter": (TrackerParams(filter="pf_colour"), good, DIMS),
+        "other parameters": (TrackerParams(samples=300), good, DIMS),
+        "other grid": (TrackerParams(), good, (10, 10, 10)),
+        "no meta": (TrackerParams(), {k: v for k, v in good.items() if k != "meta"}, DIMS),
+        "garbage meta": (TrackerParams(), bad(meta=np.array("{not json")), DIMS),
+        "other format": (TrackerParams(), bad(meta=np.array(json.dumps(meta | {"format": "x/1"}))), DIMS),
+        "samples outside the grid": (TrackerParams(), bad(**{"t0.samples": good["t0.samples"] + 1000}), DIMS),
+        "NaN position": (TrackerParams(), bad(**{"t0.x": np.full(3, np.nan)}), DIMS),
+        "weights of another length": (TrackerParams(), bad(**{"t0.weights": good["t0.weights"][:-1]}), DIMS),
+        "histogram bin out of range": (TrackerParams(), bad(**{"t0.ref_bins": good["t0.ref_bins"] + 10 ** 6}), DIMS),
+        "pickled object": (TrackerParams(), bad(**{"t0.x": np.array([object()] * 3, dtype=object)}), DIMS),
+        "bad random state": (TrackerParams(), bad(meta=np.array(json.dumps(meta | {"rng": {"state": 1}}))), DIMS),
+        "missing track": (TrackerParams(), bad(meta=np.array(json.dumps(meta | {"tracks": meta["tracks"] * 2}))),
+                          DIMS),
+    }
+    for name, (params, arrays, dims) in cases.items():
+        with pytest.raises(SnapshotError):
+            restore_tracker(params, tree, arrays, dims)
+            pytest.fail(name)
