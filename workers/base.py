@@ -21,7 +21,12 @@ same results on an idle and on a loaded machine. A worker that dies loses what w
 its inbox; offline, every worker keeps its outputs of the last :data:`REPLAY_FRAMES`
 frames and sends them again when a consumer of them comes back from a crash, and every
 worker skips an input (key, sender, frame) it has handled already, so a restart loses
-no frame. Live, inboxes are latest-frame-wins and every drop is counted.
+no frame. A stage whose outputs depend on the frames before (a tracker, a filter) saves
+its state as named arrays (:meth:`Worker.state_arrays`, ``<out>/state/<name>.npz``, no
+pickles), and its restarted incarnation advances that state through the frames its
+earlier incarnation put out after the snapshot (:meth:`Worker.catch_up`, fed from what is
+sent again) instead of skipping them. Live, inboxes are latest-frame-wins and every drop
+is counted.
 
 Everything received is validated (codec, the type's ``validate()``, the frame window
 and epoch of its stream, and the stage's own :meth:`Worker.admit`); what fails is
@@ -262,6 +267,22 @@ class Worker:
     def restore_state(self, state: dict) -> None:
         """Take over what :meth:`extra_state` of an earlier incarnation returned."""
 
+    def state_arrays(self) -> dict | None:
+        """Stage state carried to the next incarnation as named numpy arrays (filter
+        samples, particles: too big or too numeric for the JSON state), saved with the
+        state every ``STATE_PERIOD_S`` and whenever the stage calls :meth:`save_arrays`;
+        None: nothing new since the last save. No object arrays (loading runs no code)."""
+        return None
+
+    def restore_arrays(self, arrays: dict) -> None:
+        """Take over what :meth:`state_arrays` of an earlier incarnation returned (called
+        before :meth:`setup`; validate before use: the file may be damaged or another run's)."""
+
+    def catch_up(self, key: str, msg: Message) -> None:
+        """An input of a frame an earlier incarnation of this worker put out (sent again
+        after the restart): advance the stage's state through it without publishing
+        (default: skip it). Called in frame order, before the frames after them."""
+
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
         pub = self._publishers.get(key)
@@ -319,9 +340,14 @@ class Worker:
         frames = self._inputs.get(ident)
         if frames is None:
             frames = self._inputs[ident] = FrameSet()
-        if frames.add(msg.frame) and not self._finished_before(msg):
+        if not frames.add(msg.frame):
+            self.repeats_skipped += 1
+            return True
+        if not self._finished_before(msg):
             return False
         self.repeats_skipped += 1
+        self._follow_epoch(msg)
+        self.catch_up(key, msg)
         return True
 
     def _finished_before(self, msg: Message) -> bool:
@@ -588,7 +614,43 @@ class Worker:
             os.ftruncate(self._journal_fd, 0)   # everything in it is in the state now
         except OSError as exc:   # a full disk must not kill the stage; the recorder reports it
             self.log.debug("cannot save state: %s", exc)
+        self.save_arrays()
         self._last_state = time.monotonic()
+
+    def save_arrays(self) -> None:
+        """Save :meth:`state_arrays` now (``<out>/state/<name>.npz``, written to a temporary
+        file and renamed: a worker killed meanwhile leaves the previous snapshot whole)."""
+        path = self._state_path()
+        if path is None:
+            return
+        try:
+            arrays = self.state_arrays()
+            if arrays is None:
+                return
+            import numpy as np
+            path = path.with_suffix(".npz")
+            tmp = path.with_name(path.name + ".partial")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+            os.replace(tmp, path)
+        except OSError as exc:   # a full disk must not kill the stage
+            self.log.debug("cannot save state arrays: %s", exc)
+
+    def _restore_arrays(self) -> None:
+        path = self._state_path()
+        path = path.with_suffix(".npz") if path is not None else None
+        if path is None or not path.is_file():
+            return
+        import numpy as np
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except Exception as exc:  # noqa: BLE001 - a damaged file (zip, header, pickled object) of any kind
+            self.log.warning("state arrays %s not readable (%s): starting afresh", path.name,
+                             str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
+            return
+        self.restore_arrays(arrays)
 
     def _journal(self, kind: str, frame: int) -> None:
         if self._journal_fd is not None:
@@ -617,6 +679,7 @@ class Worker:
         self.rejections.restore(state.get("rejected"))
         self.ledger.bad_messages = self.rejections.total
         self.restore_state(state.get("stage") or {})
+        self._restore_arrays()
         self.log.warning("restarted (incarnation %d): carrying on from frame %d", self.incarnation,
                          self.ledger.last_frame)
 
@@ -649,12 +712,7 @@ class Worker:
                 msg = self._admit(key, sample)
                 if msg is None or self._repeated(key, msg):
                     continue
-                if msg.epoch != self._epoch:
-                    if self._epoch_seen:
-                        self.log.warning("the source restarted (epoch %d)", msg.epoch)
-                        self.new_epoch(msg.epoch)
-                    self._epoch_seen = True
-                self._epoch = msg.epoch
+                self._follow_epoch(msg)
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()
                 self.handle(key, msg)
@@ -666,6 +724,14 @@ class Worker:
                 break
             self._periodic()
             self.tick()
+
+    def _follow_epoch(self, msg: Message) -> None:
+        if msg.epoch != self._epoch:
+            if self._epoch_seen:
+                self.log.warning("the source restarted (epoch %d)", msg.epoch)
+                self.new_epoch(msg.epoch)
+            self._epoch_seen = True
+        self._epoch = msg.epoch
 
     def _loop_source(self) -> None:
         while not self.stopping:
