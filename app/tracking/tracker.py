@@ -188,6 +188,41 @@ class MultiTracker:
                     t.target.particles = t.target.particles + (x - t.target.x)   # the cloud follows
                 t.target.x = x
 
+    def relocate(self, scene: SceneFrame, radius: float, steps: int = 4) -> None:
+        """After a gap in the frames the tracker saw (a worker restarted from a snapshot,
+        live: about a second), before :meth:`update`: every target looks for its person
+        within ``radius`` (xy; the distance a person walks in the gap), where the filters'
+        own search (``alpha s_x`` around the last estimate) would lose one who moved
+        farther. Mean shift on the upper-body voxels (``refine_min_z``) of each target's
+        Voronoi share, the radius shrinking from ``radius`` to ``refine_radius`` in
+        ``steps``; a target that found nothing stays. Samples are drawn afresh around the
+        new estimate; a particle cloud moves with it."""
+        if not self.tracks:
+            return
+        xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64)
+        o = scene.origin
+        acc = np.zeros(3)
+        radii = np.geomspace(max(radius, self.p.refine_radius), self.p.refine_radius, max(1, steps))
+        everyone = np.arange(len(self.tracks))
+        for i, t in enumerate(self.tracks):
+            moved = False
+            for r in radii:
+                k = columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
+                                        scene.voxel_size, xs, i, everyone, float(r), self.p.refine_min_z, acc)
+                if k < 3:
+                    break
+                xs[i, :2] = (acc / k)[:2]
+                moved = True
+            if not moved:
+                continue
+            g = t.target
+            shift = xs[i] - g.x
+            g.x = xs[i].copy()
+            if getattr(g, "particles", None) is not None:
+                g.particles = g.particles + shift
+            elif hasattr(g, "samples"):
+                g._seed(scene)
+
     def _make(self, position, scene):
         if self.cls is NaiveTarget:
             return NaiveTarget(position, scene, self.rng, self.p)
