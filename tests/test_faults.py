@@ -573,3 +573,103 @@ def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
     assert frames == sorted(set(frames)) and 140 <= frames[-1] <= 149
     # live stages may drop frames to keep up (counted); what was written is what the recorder says
     assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 75
+
+
+@pytest.fixture(scope="module")
+def meeting(tmp_path_factory):
+    """8 s of meeting3 (200 frames, 2-3 people, two of them walking)."""
+    out = tmp_path_factory.mktemp("sim") / "meeting3"
+    r = smartroom("simulate", "--scene", "meeting3", "--seconds", 8, "--size", "320x240", "--out", out, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+TRACKING_LAYOUT = """room: faults
+bus: {listen: ["tcp/127.0.0.1:0"]}
+workers:
+  - {name: grabber, kind: grabber}
+  - {name: segmentation, kind: segmentation}
+  - {name: reconstruction, kind: reconstruction, params: {voxel_size: 0.04}}
+  - {name: cca, kind: cca}
+  - {name: tracking, kind: tracking}
+  - {name: recorder, kind: recorder, params: {voxels: false}}
+"""
+
+
+def _child_pid(parent: int, name: str) -> int | None:
+    """The pid of the launcher's worker process ``name`` (its child ``... worker NAME``)."""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == parent and b"worker" in cmd and cmd[cmd.index(b"worker") + 1:][:1] == [name.encode()]:
+            return int(d.name)
+    return None
+
+
+def _snapshot_frame(out) -> int:
+    try:
+        with np.load(Path(out) / "state" / "tracking.npz") as z:
+            return int(json.loads(str(z["worker"][()]))["frame"])
+    except (OSError, ValueError, KeyError):
+        return -1
+
+
+def test_a_killed_tracker_keeps_every_identity(meeting, tmp_path):
+    """kill -9 of the tracking worker mid-run: the restarted tracker takes over its earlier
+    incarnation's snapshot and catches up on the frames put out since (sent again by cca),
+    so tracks.jsonl is that of an undisturbed run, byte for byte (every id kept)."""
+    layout = tmp_path / "layout.yaml"
+    layout.write_text(TRACKING_LAYOUT)
+    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout,
+                  "--out", tmp_path / "calm", timeout=120)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "killed"
+    proc = start_smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout, "--out", out)
+    try:
+        assert wait_for(lambda: _snapshot_frame(out) >= 60, timeout=60, period=0.01), "no tracker snapshot"
+        os.kill(_child_pid(proc.pid, "tracking"), signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    print("\n".join(line for line in err.splitlines() if "[tracking]" in line))
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1
+    assert "tracker restored at frame" in err, err[-2000:]
+    calm = (tmp_path / "calm" / "tracks.jsonl").read_bytes()
+    assert (out / "tracks.jsonl").read_bytes() == calm
+    tracks = [json.loads(line) for line in calm.decode().splitlines()]
+    assert len(tracks) == 200 and {t["id"] for f in tracks[100:] for t in f["tracks"]} >= {1, 2}
+
+
+def test_a_damaged_tracker_snapshot_is_one_log_line_and_a_fresh_start(meeting, tmp_path):
+    """The tracking worker is killed and its snapshot damaged before it is back: the next
+    incarnation says so once and starts with an empty tracker; the run completes."""
+    layout = tmp_path / "layout.yaml"
+    layout.write_text(TRACKING_LAYOUT)
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--frames", 120,
+                           "--layout", layout, "--out", out)
+    try:
+        assert wait_for(lambda: _snapshot_frame(out) >= 40, timeout=60, period=0.01), "no tracker snapshot"
+        pid = _child_pid(proc.pid, "tracking")
+        os.kill(pid, signal.SIGSTOP)   # no snapshot written from here on
+        (out / "state" / "tracking.npz").write_bytes(b"PK\x03\x04 not a snapshot")
+        os.kill(pid, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1
+    lines = [line for line in err.splitlines() if "[tracking]" in line and "tracking.npz" in line]
+    assert len(lines) == 1 and "not readable" in lines[0] and "Traceback" not in err, err[-2000:]
+    assert "tracker restored" not in err
+    assert [json.loads(line)["frame"] for line in open(out / "tracks.jsonl")] == list(range(120))

@@ -4,8 +4,21 @@ writes ``tracks.jsonl``, the viewer draws them, the monitor shows how many).
 
 ``filter`` selects the thesis's filters: ``naive`` (§4.3.1), ``pf_raw`` / ``pf_colour``
 (§4.3.2), ``ss_raw`` / ``ss_colour`` (§4.3.3, the default).
+
+A restarted tracking worker keeps every person's identity: the tracker's whole state
+(:mod:`app.tracking.snapshot`) is saved with the frame it belongs to every
+``snapshot_frames`` frames (and with the worker's state); the next incarnation restores
+it and advances it, without publishing, through the frames its earlier incarnation put
+out after the snapshot (the blobs sent again after the restart, :meth:`Worker.catch_up`).
+Offline the tracks are then those of an undisturbed run, byte for byte. Where frames
+are missing between the snapshot and the restart (live: ~1 s), the tracker carries on
+from the snapshot and first looks for every track's person within the distance a person
+walks in the gap (:meth:`~app.tracking.tracker.MultiTracker.relocate`).
 """
 from __future__ import annotations
+
+import time
+from collections import deque
 
 import numpy as np
 
@@ -28,9 +41,13 @@ class Tracking(Worker):
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
         "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
         "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
+        "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
-    RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100)}
+    RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100),
+              "snapshot_frames": (1, 1000)}
+    WALK_SPEED = 1.5         # m/s: how far a person may have gone in a gap the tracker did not see
+    RELOCATE_AFTER_S = 0.2   # a gap shorter than this needs no wider search
 
     def setup(self) -> None:
         from app.tracking.classifier import DEFAULT_TREE, load_tree
@@ -47,27 +64,128 @@ class Tracking(Worker):
         tree = None if name == "none" else load_tree(DEFAULT_TREE if name == "default" else name)
         from app.tracking.tracker import warm_up
         warm_up()
+        self.tracker_params = params
+        self.classifier = tree
         self.tracker = MultiTracker(params, tree)
         self.occupancy = None
         self.grid_key = None
         self.counts: list[int] = []
+        self.at = None           # (epoch, frame, t, dims) of the last frame the tracker took in
+        self.saved_at = None     # ... of the last snapshot saved
+        self.resumed = None      # (frame, t) of the snapshot restored, until the first frame after it
+        self.caught_up: list[int] = []
+        self.snapshot_ms: deque = deque(maxlen=100)   # the last snapshots' cost (ms: state, savez, rename)
 
-    def handle(self, key: str, msg: Blobs) -> None:
+    def restore_arrays(self, arrays: dict) -> None:
+        self.snapshot = arrays   # the earlier incarnation's tracker, taken over with the first frame (grid known)
+
+    def new_epoch(self, epoch: int) -> None:
+        self._take_over(None)    # a snapshot belongs to its epoch's frame numbers
+
+    def _take_over(self, msg: Blobs | None) -> None:
+        """Restore the earlier incarnation's tracker if its snapshot fits this stream
+        (epoch, grid, parameters); otherwise say why, once, and start afresh."""
+        arrays, self.snapshot = getattr(self, "snapshot", None), None
+        if arrays is None:
+            return
+        from app.tracking.snapshot import SnapshotError, restore_tracker
+        try:
+            if msg is None:
+                raise SnapshotError("the source restarted (a new epoch)")
+            mine = self._snapshot_meta(arrays)
+            dims = [int(d) for d in msg.dims]
+            if mine["epoch"] != msg.epoch or mine["dims"] != dims or mine["classifier"] != self.params["classifier"]:
+                raise SnapshotError(f"tracker snapshot of epoch {mine['epoch']}, grid {mine['dims']}, classifier "
+                                    f"{mine['classifier']!r}: not this stream's")
+            if msg.frame <= mine["frame"] and msg.frame not in self.ledger.done:
+                raise SnapshotError(f"tracker snapshot of frame {mine['frame']}, ahead of frame {msg.frame}")
+            self.tracker = restore_tracker(self.tracker_params, self.classifier, arrays, dims)
+        except SnapshotError as exc:
+            self.log.warning("%s: the tracker starts afresh", exc)
+            return
+        self.at = self.saved_at = (msg.epoch, mine["frame"], mine["t"], tuple(dims))
+        self.resumed = (mine["frame"], mine["t"])
+        self.log.warning("tracker restored at frame %d: tracks %s, next id %d", mine["frame"],
+                         [t.id for t in self.tracker.tracks], self.tracker.next_id)
+
+    @staticmethod
+    def _snapshot_meta(arrays) -> dict:
+        from app.tracking.snapshot import SnapshotError
+        try:
+            import json
+            mine = json.loads(str(np.asarray(arrays["worker"])[()]))
+            return {"epoch": int(mine["epoch"]), "frame": int(mine["frame"]), "t": float(mine["t"]),
+                    "dims": [int(d) for d in mine["dims"]], "classifier": str(mine["classifier"])}
+        except (KeyError, ValueError, TypeError) as exc:
+            raise SnapshotError(f"tracker snapshot: no readable worker meta ({type(exc).__name__})") from None
+
+    def state_arrays(self) -> dict | None:
+        if getattr(self, "at", None) is None or self.at == self.saved_at:
+            return None          # nothing tracked yet (or a snapshot still to take over), or saved already
+        import json
+
+        from app.tracking.snapshot import tracker_state
+        epoch, frame, t, dims = self.at
+        arrays = tracker_state(self.tracker, dims)
+        arrays["worker"] = np.array(json.dumps({"epoch": epoch, "frame": frame, "t": t, "dims": list(dims),
+                                                "classifier": self.params["classifier"]}))
+        self.saved_at = self.at
+        return arrays
+
+    def _scene(self, msg: Blobs):
         from app.tracking.scene import OccupancyIndex, SceneFrame
 
         gkey = tuple(int(d) for d in msg.dims)
         if gkey != self.grid_key:
             self.occupancy = OccupancyIndex(gkey)
             self.grid_key = gkey
-        scene = SceneFrame(msg.frame, msg.t, msg.indices, msg.colours, msg.surface, msg.labels, msg.features,
-                           msg.person, msg.origin, msg.voxel_size, self.occupancy)
-        ids, positions = self.tracker.update(scene)
+        return SceneFrame(msg.frame, msg.t, msg.indices, msg.colours, msg.surface, msg.labels, msg.features,
+                          msg.person, msg.origin, msg.voxel_size, self.occupancy)
+
+    def _update(self, msg: Blobs):
+        """The tracker takes in one frame (after a gap since a restored snapshot, it first
+        looks for its people farther away)."""
+        self._take_over(msg)
+        scene = self._scene(msg)
+        if self.resumed is not None:
+            frame, t = self.resumed
+            self.resumed = None
+            if msg.frame > frame + 1:
+                gap = max(0.0, msg.t - t)
+                self.log.warning("frames %d-%d of the tracker's snapshot are not sent again: carrying on after a "
+                                 "gap of %.2f s", frame + 1, msg.frame - 1, gap)
+                if gap > self.RELOCATE_AFTER_S:
+                    self.tracker.relocate(scene, self.tracker.p.refine_radius + self.WALK_SPEED * gap)
+        out = self.tracker.update(scene)
+        self.at = (msg.epoch, msg.frame, msg.t, self.grid_key)
+        return out
+
+    def catch_up(self, key: str, msg: Blobs) -> None:
+        """A frame the earlier incarnation put out: the restored tracker takes it in (if
+        its snapshot is older), nothing is published."""
+        self._take_over(msg)
+        if self.at is None or self.at[0] != msg.epoch or msg.frame <= self.at[1]:
+            return               # no snapshot (a fresh tracker: the old behaviour), or in it already
+        self._update(msg)
+        self.caught_up.append(msg.frame)
+
+    def handle(self, key: str, msg: Blobs) -> None:
+        ids, positions = self._update(msg)
+        if self.caught_up:
+            self.log.warning("caught up on frames %d-%d (%d) without publishing them", self.caught_up[0],
+                             self.caught_up[-1], len(self.caught_up))
+            self.caught_up = []
         self.counts.append(len(ids))
         same = {"epoch": msg.epoch} if hasattr(msg, "epoch") else {}
         self.publish(self.keys.tracks(), Tracks(**same, frame=msg.frame, stamp=msg.stamp, t=msg.t,
                                                 ids=ids.astype(np.int64), positions=positions.astype(np.float64)))
+        if msg.frame % int(self.params["snapshot_frames"]) == 0:
+            t0 = time.perf_counter()
+            self.save_arrays()
+            self.snapshot_ms.append((time.perf_counter() - t0) * 1e3)
 
     def extra_figures(self) -> dict:
         c = getattr(self, "counts", [])
         return {"tracks": int(c[-1]) if c else 0,
-                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0}
+                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0,
+                "snapshot_ms": round(float(np.median(ms)), 2) if (ms := getattr(self, "snapshot_ms", None)) else None}
