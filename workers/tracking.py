@@ -152,7 +152,7 @@ class Tracking(Worker):
             self.resumed = None
             if msg.frame > frame + 1:
                 gap = max(0.0, msg.t - t)
-                self.log.warning("frames %d-%d of the tracker's snapshot are not sent again: carrying on after a "
+                self.log.warning("frames %d-%d after the tracker's snapshot were not sent again: carrying on after a "
                                  "gap of %.2f s", frame + 1, msg.frame - 1, gap)
                 if gap > self.RELOCATE_AFTER_S:
                     self.tracker.relocate(scene, self.tracker.p.refine_radius + self.WALK_SPEED * gap)

@@ -188,33 +188,48 @@ class MultiTracker:
                     t.target.particles = t.target.particles + (x - t.target.x)   # the cloud follows
                 t.target.x = x
 
-    def relocate(self, scene: SceneFrame, radius: float, steps: int = 4) -> None:
+    def relocate(self, scene: SceneFrame, radius: float, step: float = 0.1, shifts: int = 8) -> None:
         """After a gap in the frames the tracker saw (a worker restarted from a snapshot,
         live: about a second), before :meth:`update`: every target looks for its person
         within ``radius`` (xy; the distance a person walks in the gap), where the filters'
         own search (``alpha s_x`` around the last estimate) would lose one who moved
-        farther. Mean shift on the upper-body voxels (``refine_min_z``) of each target's
-        Voronoi share, the radius shrinking from ``radius`` to ``refine_radius`` in
-        ``steps``; a target that found nothing stays. Samples are drawn afresh around the
-        new estimate; a particle cloud moves with it."""
+        farther. The nearest person first: the disc around the last estimate grows by
+        ``step`` from ``refine_radius`` until the target's Voronoi share of its upper-body
+        voxels (``refine_min_z``) holds a quarter of ``min_support_kg``; then mean shift
+        with ``refine_radius`` (at most ``shifts`` steps) centres it on that person. A
+        target that finds nobody stays. Samples are drawn afresh around the new estimate;
+        a particle cloud moves with it."""
         if not self.tracks:
             return
+        p = self.p
         xs = np.ascontiguousarray([t.target.x for t in self.tracks], dtype=np.float64)
         o = scene.origin
         acc = np.zeros(3)
-        radii = np.geomspace(max(radius, self.p.refine_radius), self.p.refine_radius, max(1, steps))
         everyone = np.arange(len(self.tracks))
+        need = max(3, int(0.25 * p.min_support_kg / (1100.0 * scene.voxel_size ** 3)))
+
+        def share(i, r):
+            return columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
+                                       scene.voxel_size, xs, i, everyone, float(r), p.refine_min_z, acc)
+
         for i, t in enumerate(self.tracks):
-            moved = False
-            for r in radii:
-                k = columns.voronoi_sum(scene.col_start, scene.indices, scene.dims[0], scene.dims[1], o[0], o[1], o[2],
-                                        scene.voxel_size, xs, i, everyone, float(r), self.p.refine_min_z, acc)
+            found = False
+            for r in np.arange(p.refine_radius, max(radius, p.refine_radius) + step / 2, step):
+                k = share(i, r)
+                if k >= need:
+                    xs[i, :2] = (acc / k)[:2]
+                    found = True
+                    break
+            if not found:
+                continue
+            for _ in range(shifts):
+                k = share(i, p.refine_radius)
                 if k < 3:
                     break
+                moved = float(((acc[:2] / k - xs[i, :2]) ** 2).sum())
                 xs[i, :2] = (acc / k)[:2]
-                moved = True
-            if not moved:
-                continue
+                if moved < (0.25 * scene.voxel_size) ** 2:
+                    break
             g = t.target
             shift = xs[i] - g.x
             g.x = xs[i].copy()
