@@ -29,15 +29,27 @@ reconstruction, ``misses: false``) are posed whole. ``tolerant`` is the consensu
 the one-miss voxels below ``tolerant_low`` (m) within ``tolerant_near`` (m) of a track, in
 frames where at least ``tolerant_views`` cameras still see them (the shins and feet the
 consensus carves; :mod:`app.pose.selection`).
+
+A restarted pose worker carries every person's filter on: the estimator's state
+(:mod:`app.pose.snapshot`) is saved with the frame it belongs to every
+``snapshot_frames`` frames (and with the worker's state); the next incarnation restores
+it with the first voxels and poses, without publishing, the frames its earlier
+incarnation put out after the snapshot (the voxels and tracks sent again after the
+restart, :meth:`Worker.catch_up`). Offline the poses are then those of an undisturbed
+run, byte for byte.
 """
 from __future__ import annotations
+
+import json
+import time
+from collections import deque
 
 import numpy as np
 
 from app.errors import InputError
 from app.messages import Poses, Tracks, Voxels
 from app.pose.selection import pose_subset
-from workers.base import Worker
+from workers.base import REPLAY_FRAMES, Worker
 
 KEEP_FRAMES = 8
 
@@ -84,6 +96,7 @@ class Pose(Worker):
         "tolerant_low": 0.2,        # m: tolerant keeps one-miss voxels below this height
         "tolerant_near": 0.6,       # m: ... within this distance (floor plane) of a track
         "tolerant_views": 3,        # ... where at least this many cameras see them (frames of >= views + 1 cameras)
+        "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
     CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
@@ -94,7 +107,8 @@ class Pose(Worker):
               "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
-              "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64)}
+              "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
+              "snapshot_frames": (1, 1000)}
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -126,21 +140,33 @@ class Pose(Worker):
         self.done = -1
         self.people_counts: list[int] = []
         self.kept: list[float] = []    # share of the frame's voxels posed on (consensus)
+        self.at = None                 # (epoch, frame, grid) of the last frame the estimator took in
+        self.saved_at = None           # ... of the last snapshot saved
+        self.catching = False          # restored: posing the frames put out before, unpublished
+        self.caught_up: list[int] = []
+        self.snapshot_ms: deque = deque(maxlen=100)
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
         if self.settings.ik == "table":
             from app.pose.detections import arm_table
             arm_table("l"), arm_table("r")      # the inverse-kinematics tables, before the first frame
 
+    @staticmethod
+    def _grid(msg: Voxels) -> tuple:
+        return (round(float(msg.voxel_size), 6), tuple(float(v) for v in msg.origin), tuple(int(d) for d in msg.dims))
+
+    def _settings_for(self, grid: tuple):
+        s = self.settings
+        s.voxel_size = grid[0]
+        s.room_lo = tuple(grid[1])
+        s.room_hi = tuple(np.asarray(grid[1]) + np.asarray(grid[2]) * grid[0])
+        return s
+
     def _estimator(self, msg: Voxels):
         from app.pose.estimator import PoseEstimator
-        grid = (round(float(msg.voxel_size), 6), tuple(float(v) for v in msg.origin), tuple(int(d) for d in msg.dims))
+        grid = self._grid(msg)
         if grid != self.grid:
-            s = self.settings
-            s.voxel_size = grid[0]
-            s.room_lo = tuple(grid[1])
-            s.room_hi = tuple(np.asarray(grid[1]) + np.asarray(grid[2]) * grid[0])
-            self.estimator = PoseEstimator(s)
+            self.estimator = PoseEstimator(self._settings_for(grid))
             self.grid = grid
         return self.estimator
 
@@ -148,31 +174,120 @@ class Pose(Worker):
         self.done = -1
         self.voxels.clear()
         self.tracks.clear()
+        self._take_over(None)   # a snapshot belongs to its epoch's frame numbers
+        self.catching = False
+
+    # -- the earlier incarnation's estimator ------------------------------------------
+    def restore_arrays(self, arrays: dict) -> None:
+        self.snapshot = arrays   # taken over with the first voxels (the grid is known then)
+
+    def _take_over(self, msg: Voxels | None) -> None:
+        """Restore the earlier incarnation's estimator if its snapshot fits this stream
+        (epoch, grid, settings); otherwise say why, once, and start afresh."""
+        arrays, self.snapshot = getattr(self, "snapshot", None), None
+        if arrays is None:
+            return
+        from app.pose.snapshot import SnapshotError, restore_estimator
+        try:
+            if msg is None:
+                raise SnapshotError("the source restarted (a new epoch)")
+            try:
+                mine = json.loads(str(np.asarray(arrays["worker"])[()]))
+                epoch, frame = int(mine["epoch"]), int(mine["frame"])
+                grid = (float(mine["grid"][0]), tuple(float(v) for v in mine["grid"][1]),
+                        tuple(int(d) for d in mine["grid"][2]))
+            except (KeyError, ValueError, TypeError, IndexError) as exc:
+                raise SnapshotError(f"pose snapshot: no readable worker meta ({type(exc).__name__})") from None
+            if epoch != msg.epoch or grid != self._grid(msg):
+                raise SnapshotError(f"pose snapshot of epoch {epoch}, grid {grid}: not this stream's")
+            if msg.frame <= frame and msg.frame not in self.ledger.done:
+                raise SnapshotError(f"pose snapshot of frame {frame}, ahead of frame {msg.frame}")
+            est = restore_estimator(self._settings_for(grid), arrays)
+        except SnapshotError as exc:
+            self.log.warning("%s: the pose filters start afresh", exc)
+            return
+        self.estimator, self.grid, self.done = est, grid, frame
+        self.at = self.saved_at = (epoch, frame, grid)
+        self.catching = True
+        for d in (self.voxels, self.tracks):
+            for f in [f for f in d if f <= frame]:
+                del d[f]
+        self.log.warning("pose estimator restored at frame %d: people %s", frame, sorted(est.people))
+
+    def state_arrays(self) -> dict | None:
+        if getattr(self, "at", None) is None or self.at == self.saved_at or self.estimator is None:
+            return None
+        from app.pose.snapshot import estimator_state
+        epoch, frame, grid = self.at
+        arrays = estimator_state(self.estimator)
+        arrays["worker"] = np.array(json.dumps({"epoch": epoch, "frame": frame, "grid": [grid[0], list(grid[1]),
+                                                                                         list(grid[2])]}))
+        self.saved_at = self.at
+        return arrays
+
+    # -- frames ------------------------------------------------------------------------
+    def catch_up(self, key: str, msg) -> None:
+        """Voxels or tracks of a frame the earlier incarnation put out: the restored
+        estimator poses it (if its snapshot is older), nothing is published."""
+        if isinstance(msg, Voxels):
+            self._take_over(msg)
+        elif getattr(self, "snapshot", None) is not None:   # tracks before the first voxels: kept for then
+            self.tracks[msg.frame] = msg
+            for f in sorted(self.tracks)[:-(KEEP_FRAMES + REPLAY_FRAMES)]:
+                del self.tracks[f]
+            return
+        if self.catching and self.at is not None and msg.epoch == self.at[0]:
+            self._receive(msg)
 
     def handle(self, key: str, msg) -> None:   # validated by the base
+        if isinstance(msg, Voxels):
+            self._take_over(msg)
+        self._receive(msg)
+
+    def _receive(self, msg) -> None:
         if msg.frame <= self.done:
             return
         store = self.voxels if isinstance(msg, Voxels) else self.tracks
         store[msg.frame] = msg
+        keep = KEEP_FRAMES + (REPLAY_FRAMES if self.catching else 0)   # what is sent again comes in two streams
         for d in (self.voxels, self.tracks):
-            for f in sorted(d)[:-KEEP_FRAMES]:
+            for f in sorted(d)[:-keep]:
                 del d[f]
         ready = sorted(set(self.voxels) & set(self.tracks))
-        if ready:
-            frame = ready[-1]   # the newest complete frame; older ones are behind
+        # catching up, every complete frame is posed in order (the estimator must see each
+        # frame the undisturbed run saw); otherwise the newest: older ones are behind
+        for frame in ready if self.catching else ready[-1:]:
             self._pose(self.voxels.pop(frame), self.tracks.pop(frame))
             for d in (self.voxels, self.tracks):
                 for f in [f for f in d if f <= frame]:
                     del d[f]
 
     def _pose(self, vox: Voxels, tracks: Tracks) -> None:
+        publish = vox.frame not in self.ledger.done   # put out by the earlier incarnation: catching up
+        if self.catching and not self.caught_up and vox.frame > self.done + 1:
+            self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
+                             self.done + 1, vox.frame - 1)
+        if publish and self.catching:
+            self.catching = False
+            if self.caught_up:
+                self.log.warning("caught up on frames %d-%d (%d) without publishing them", self.caught_up[0],
+                                 self.caught_up[-1], len(self.caught_up))
+                self.caught_up = []
         self.done = vox.frame
         try:
-            self._estimate(vox, tracks)
+            self._estimate(vox, tracks, publish)
         finally:
-            self.finished(vox.frame)   # older frames still waiting are given up with it
+            if publish:
+                self.finished(vox.frame)   # older frames still waiting are given up with it
+            else:
+                self.caught_up.append(vox.frame)
+        self.at = (vox.epoch, vox.frame, self.grid)
+        if publish and vox.frame % int(self.params["snapshot_frames"]) == 0:
+            t0 = time.perf_counter()
+            self.save_arrays()
+            self.snapshot_ms.append((time.perf_counter() - t0) * 1e3)
 
-    def _estimate(self, vox: Voxels, tracks: Tracks) -> None:
+    def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         est = self._estimator(vox)
@@ -195,6 +310,8 @@ class Pose(Worker):
         self.people_counts.append(len(order))
         joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)
         active = np.array([result[t][1] for t in order], dtype=bool).reshape(-1, 15)
+        if not publish:
+            return
         same = {"epoch": vox.epoch} if hasattr(vox, "epoch") else {}
         self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t, worker=self.name,
                                               tracks=np.array(order, dtype=np.int64), joints=joints, active=active))
@@ -203,4 +320,5 @@ class Pose(Worker):
         c = getattr(self, "people_counts", [])
         kept = getattr(self, "kept", [])[-50:]
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
-                "consensus_share": round(float(np.mean(kept)), 3) if kept else None}
+                "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
+                "snapshot_ms": round(float(np.median(ms)), 2) if (ms := getattr(self, "snapshot_ms", None)) else None}
