@@ -202,6 +202,8 @@ class Worker:
         self._replay_to: set[str] | None = None  # consumers of this worker's outputs
         self.resent = 0                          # messages sent again to restarted consumers
         self._inputs: dict[tuple[str, str, int], FrameSet] = {}  # (key, sender, epoch) -> frames handled
+        self._earlier: dict | None = None        # the earlier incarnation's state arrays (earlier_arrays)
+        self._snapshot_ms: deque = deque(maxlen=100)
         self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
 
     # -- what subclasses provide ------------------------------------------------------
@@ -271,12 +273,49 @@ class Worker:
         """Stage state carried to the next incarnation as named numpy arrays (filter
         samples, particles: too big or too numeric for the JSON state), saved with the
         state every ``STATE_PERIOD_S`` and whenever the stage calls :meth:`save_arrays`;
-        None: nothing new since the last save. No object arrays (loading runs no code)."""
+        None: nothing new since the last save. No object arrays (loading runs no code).
+        Stamped with :meth:`stamp_arrays`, taken over with :meth:`earlier_arrays`."""
         return None
 
-    def restore_arrays(self, arrays: dict) -> None:
-        """Take over what :meth:`state_arrays` of an earlier incarnation returned (called
-        before :meth:`setup`; validate before use: the file may be damaged or another run's)."""
+    def stamp_arrays(self, arrays: dict, epoch: int, frame: int, t: float, **stream) -> dict:
+        """``arrays`` marked as the state after ``frame`` (time ``t``, s) of ``epoch`` in
+        ``stream`` (JSON-able facts the state depends on: grid, parameters), for
+        :meth:`earlier_arrays`."""
+        import numpy as np
+        arrays["worker"] = np.array(json.dumps({"epoch": int(epoch), "frame": int(frame), "t": float(t),
+                                                "stream": stream}))
+        return arrays
+
+    @property
+    def earlier_pending(self) -> bool:
+        """The earlier incarnation's state arrays are still to be taken over."""
+        return self._earlier is not None
+
+    def earlier_arrays(self, msg: Message | None, what: str, **stream) -> tuple[dict, dict] | None:
+        """The earlier incarnation's :meth:`state_arrays` (once; None after) with their stamp
+        (``{"epoch", "frame", "t", "stream"}``) if they belong to ``msg``'s stream: its epoch, the
+        same ``stream`` facts, and not ahead of ``msg`` unless ``msg`` was put out by that
+        incarnation already. Otherwise one log line saying why and that ``what`` starts
+        afresh (``msg`` None: the source restarted), and None."""
+        arrays, self._earlier = self._earlier, None
+        if arrays is None:
+            return None
+        try:
+            if msg is None:
+                raise ValueError("the source restarted (a new epoch)")
+            try:
+                mine = json.loads(str(arrays["worker"][()]))
+                epoch, frame, t, theirs = int(mine["epoch"]), int(mine["frame"]), float(mine["t"]), mine["stream"]
+            except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
+                raise ValueError(f"no readable stamp ({type(exc).__name__})") from None
+            if epoch != msg.epoch or theirs != json.loads(json.dumps(stream)):
+                raise ValueError(f"of epoch {epoch}, {theirs}: not this stream's")
+            if msg.frame <= frame and msg.frame not in self.ledger.done:
+                raise ValueError(f"of frame {frame}, ahead of frame {msg.frame}")
+        except ValueError as exc:
+            self.log.warning("state arrays %s: %s starts afresh", exc, what)
+            return None
+        return arrays, {"epoch": epoch, "frame": frame, "t": t, "stream": theirs}
 
     def catch_up(self, key: str, msg: Message) -> None:
         """An input of a frame an earlier incarnation of this worker put out (sent again
@@ -574,6 +613,8 @@ class Worker:
         figures["resent"] = self.resent
         figures["repeats_skipped"] = self.repeats_skipped
         figures["rejected"] = self.rejections.figures()
+        if self._snapshot_ms:   # the cost of the state arrays (state_arrays, savez, rename), median ms
+            figures["snapshot_ms"] = round(float(sorted(self._snapshot_ms)[len(self._snapshot_ms) // 2]), 2)
         figures.update(self.extra_figures())
         return figures
 
@@ -623,6 +664,7 @@ class Worker:
         path = self._state_path()
         if path is None:
             return
+        t0 = time.perf_counter()
         try:
             arrays = self.state_arrays()
             if arrays is None:
@@ -634,6 +676,7 @@ class Worker:
             with open(tmp, "wb") as f:
                 np.savez(f, **arrays)
             os.replace(tmp, path)
+            self._snapshot_ms.append((time.perf_counter() - t0) * 1e3)
         except OSError as exc:   # a full disk must not kill the stage
             self.log.debug("cannot save state arrays: %s", exc)
 
@@ -650,7 +693,7 @@ class Worker:
             self.log.warning("state arrays %s not readable (%s): starting afresh", path.name,
                              str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
             return
-        self.restore_arrays(arrays)
+        self._earlier = arrays   # taken over by the stage with its first input (earlier_arrays)
 
     def _journal(self, kind: str, frame: int) -> None:
         if self._journal_fd is not None:

@@ -40,10 +40,6 @@ run, byte for byte.
 """
 from __future__ import annotations
 
-import json
-import time
-from collections import deque
-
 import numpy as np
 
 from app.errors import InputError
@@ -140,11 +136,10 @@ class Pose(Worker):
         self.done = -1
         self.people_counts: list[int] = []
         self.kept: list[float] = []    # share of the frame's voxels posed on (consensus)
-        self.at = None                 # (epoch, frame, grid) of the last frame the estimator took in
+        self.at = None                 # (epoch, frame, t, grid) of the last frame the estimator took in
         self.saved_at = None           # ... of the last snapshot saved
         self.catching = False          # restored: posing the frames put out before, unpublished
         self.caught_up: list[int] = []
-        self.snapshot_ms: deque = deque(maxlen=100)
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
         if self.settings.ik == "table":
@@ -178,36 +173,22 @@ class Pose(Worker):
         self.catching = False
 
     # -- the earlier incarnation's estimator ------------------------------------------
-    def restore_arrays(self, arrays: dict) -> None:
-        self.snapshot = arrays   # taken over with the first voxels (the grid is known then)
-
     def _take_over(self, msg: Voxels | None) -> None:
         """Restore the earlier incarnation's estimator if its snapshot fits this stream
         (epoch, grid, settings); otherwise say why, once, and start afresh."""
-        arrays, self.snapshot = getattr(self, "snapshot", None), None
-        if arrays is None:
+        grid = self._grid(msg) if msg is not None else None
+        earlier = self.earlier_arrays(msg, "the pose filters", grid=grid)
+        if earlier is None:
             return
         from app.pose.snapshot import SnapshotError, restore_estimator
+        (arrays, mine), frame = earlier, earlier[1]["frame"]
         try:
-            if msg is None:
-                raise SnapshotError("the source restarted (a new epoch)")
-            try:
-                mine = json.loads(str(np.asarray(arrays["worker"])[()]))
-                epoch, frame = int(mine["epoch"]), int(mine["frame"])
-                grid = (float(mine["grid"][0]), tuple(float(v) for v in mine["grid"][1]),
-                        tuple(int(d) for d in mine["grid"][2]))
-            except (KeyError, ValueError, TypeError, IndexError) as exc:
-                raise SnapshotError(f"pose snapshot: no readable worker meta ({type(exc).__name__})") from None
-            if epoch != msg.epoch or grid != self._grid(msg):
-                raise SnapshotError(f"pose snapshot of epoch {epoch}, grid {grid}: not this stream's")
-            if msg.frame <= frame and msg.frame not in self.ledger.done:
-                raise SnapshotError(f"pose snapshot of frame {frame}, ahead of frame {msg.frame}")
             est = restore_estimator(self._settings_for(grid), arrays)
         except SnapshotError as exc:
             self.log.warning("%s: the pose filters start afresh", exc)
             return
         self.estimator, self.grid, self.done = est, grid, frame
-        self.at = self.saved_at = (epoch, frame, grid)
+        self.at = self.saved_at = (mine["epoch"], frame, mine["t"], grid)
         self.catching = True
         for d in (self.voxels, self.tracks):
             for f in [f for f in d if f <= frame]:
@@ -218,12 +199,9 @@ class Pose(Worker):
         if getattr(self, "at", None) is None or self.at == self.saved_at or self.estimator is None:
             return None
         from app.pose.snapshot import estimator_state
-        epoch, frame, grid = self.at
-        arrays = estimator_state(self.estimator)
-        arrays["worker"] = np.array(json.dumps({"epoch": epoch, "frame": frame, "grid": [grid[0], list(grid[1]),
-                                                                                         list(grid[2])]}))
+        epoch, frame, t, grid = self.at
         self.saved_at = self.at
-        return arrays
+        return self.stamp_arrays(estimator_state(self.estimator), epoch, frame, t, grid=grid)
 
     # -- frames ------------------------------------------------------------------------
     def catch_up(self, key: str, msg) -> None:
@@ -231,7 +209,7 @@ class Pose(Worker):
         estimator poses it (if its snapshot is older), nothing is published."""
         if isinstance(msg, Voxels):
             self._take_over(msg)
-        elif getattr(self, "snapshot", None) is not None:   # tracks before the first voxels: kept for then
+        elif self.earlier_pending:   # tracks before the first voxels: kept for then
             self.tracks[msg.frame] = msg
             for f in sorted(self.tracks)[:-(KEEP_FRAMES + REPLAY_FRAMES)]:
                 del self.tracks[f]
@@ -281,11 +259,9 @@ class Pose(Worker):
                 self.finished(vox.frame)   # older frames still waiting are given up with it
             else:
                 self.caught_up.append(vox.frame)
-        self.at = (vox.epoch, vox.frame, self.grid)
+        self.at = (vox.epoch, vox.frame, vox.t, self.grid)
         if publish and vox.frame % int(self.params["snapshot_frames"]) == 0:
-            t0 = time.perf_counter()
             self.save_arrays()
-            self.snapshot_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
@@ -320,5 +296,4 @@ class Pose(Worker):
         c = getattr(self, "people_counts", [])
         kept = getattr(self, "kept", [])[-50:]
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
-                "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
-                "snapshot_ms": round(float(np.median(ms)), 2) if (ms := getattr(self, "snapshot_ms", None)) else None}
+                "consensus_share": round(float(np.mean(kept)), 3) if kept else None}

@@ -17,9 +17,6 @@ walks in the gap (:meth:`~app.tracking.tracker.MultiTracker.relocate`).
 """
 from __future__ import annotations
 
-import time
-from collections import deque
-
 import numpy as np
 
 from app.errors import InputError
@@ -74,31 +71,22 @@ class Tracking(Worker):
         self.saved_at = None     # ... of the last snapshot saved
         self.resumed = None      # (frame, t) of the snapshot restored, until the first frame after it
         self.caught_up: list[int] = []
-        self.snapshot_ms: deque = deque(maxlen=100)   # the last snapshots' cost (ms: state, savez, rename)
-
-    def restore_arrays(self, arrays: dict) -> None:
-        self.snapshot = arrays   # the earlier incarnation's tracker, taken over with the first frame (grid known)
 
     def new_epoch(self, epoch: int) -> None:
         self._take_over(None)    # a snapshot belongs to its epoch's frame numbers
 
+    def _stream(self, dims) -> dict:
+        return {"dims": [int(d) for d in dims], "classifier": self.params["classifier"]}
+
     def _take_over(self, msg: Blobs | None) -> None:
         """Restore the earlier incarnation's tracker if its snapshot fits this stream
         (epoch, grid, parameters); otherwise say why, once, and start afresh."""
-        arrays, self.snapshot = getattr(self, "snapshot", None), None
-        if arrays is None:
+        earlier = self.earlier_arrays(msg, "the tracker", **self._stream(msg.dims if msg is not None else ()))
+        if earlier is None:
             return
         from app.tracking.snapshot import SnapshotError, restore_tracker
+        (arrays, mine), dims = earlier, [int(d) for d in msg.dims]
         try:
-            if msg is None:
-                raise SnapshotError("the source restarted (a new epoch)")
-            mine = self._snapshot_meta(arrays)
-            dims = [int(d) for d in msg.dims]
-            if mine["epoch"] != msg.epoch or mine["dims"] != dims or mine["classifier"] != self.params["classifier"]:
-                raise SnapshotError(f"tracker snapshot of epoch {mine['epoch']}, grid {mine['dims']}, classifier "
-                                    f"{mine['classifier']!r}: not this stream's")
-            if msg.frame <= mine["frame"] and msg.frame not in self.ledger.done:
-                raise SnapshotError(f"tracker snapshot of frame {mine['frame']}, ahead of frame {msg.frame}")
             self.tracker = restore_tracker(self.tracker_params, self.classifier, arrays, dims)
         except SnapshotError as exc:
             self.log.warning("%s: the tracker starts afresh", exc)
@@ -108,29 +96,13 @@ class Tracking(Worker):
         self.log.warning("tracker restored at frame %d: tracks %s, next id %d", mine["frame"],
                          [t.id for t in self.tracker.tracks], self.tracker.next_id)
 
-    @staticmethod
-    def _snapshot_meta(arrays) -> dict:
-        from app.tracking.snapshot import SnapshotError
-        try:
-            import json
-            mine = json.loads(str(np.asarray(arrays["worker"])[()]))
-            return {"epoch": int(mine["epoch"]), "frame": int(mine["frame"]), "t": float(mine["t"]),
-                    "dims": [int(d) for d in mine["dims"]], "classifier": str(mine["classifier"])}
-        except (KeyError, ValueError, TypeError) as exc:
-            raise SnapshotError(f"tracker snapshot: no readable worker meta ({type(exc).__name__})") from None
-
     def state_arrays(self) -> dict | None:
         if getattr(self, "at", None) is None or self.at == self.saved_at:
             return None          # nothing tracked yet (or a snapshot still to take over), or saved already
-        import json
-
         from app.tracking.snapshot import tracker_state
         epoch, frame, t, dims = self.at
-        arrays = tracker_state(self.tracker, dims)
-        arrays["worker"] = np.array(json.dumps({"epoch": epoch, "frame": frame, "t": t, "dims": list(dims),
-                                                "classifier": self.params["classifier"]}))
         self.saved_at = self.at
-        return arrays
+        return self.stamp_arrays(tracker_state(self.tracker, dims), epoch, frame, t, **self._stream(dims))
 
     def _scene(self, msg: Blobs):
         from app.tracking.scene import OccupancyIndex, SceneFrame
@@ -180,12 +152,9 @@ class Tracking(Worker):
         self.publish(self.keys.tracks(), Tracks(**same, frame=msg.frame, stamp=msg.stamp, t=msg.t,
                                                 ids=ids.astype(np.int64), positions=positions.astype(np.float64)))
         if msg.frame % int(self.params["snapshot_frames"]) == 0:
-            t0 = time.perf_counter()
             self.save_arrays()
-            self.snapshot_ms.append((time.perf_counter() - t0) * 1e3)
 
     def extra_figures(self) -> dict:
         c = getattr(self, "counts", [])
         return {"tracks": int(c[-1]) if c else 0,
-                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0,
-                "snapshot_ms": round(float(np.median(ms)), 2) if (ms := getattr(self, "snapshot_ms", None)) else None}
+                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0}
