@@ -29,6 +29,26 @@ def smartroom(*args, timeout=120, **kw):
                           timeout=timeout, cwd=ROOT, env=env, **kw)
 
 
+def simulated(tmp_path_factory, scene: str, seconds: float, size: str = "320x240"):
+    """A recording of ``seconds`` of a simulated ``scene`` (made by ``smartroom simulate``)."""
+    out = tmp_path_factory.mktemp("sim") / scene
+    r = smartroom("simulate", "--scene", scene, "--seconds", seconds, "--size", size, "--out", out, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def through_npz(arrays: dict) -> dict:
+    """``arrays`` saved with ``numpy.savez`` and loaded back (no pickles), as a state file is."""
+    import io
+
+    import numpy as np
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    buf.seek(0)
+    with np.load(buf, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
 def start_smartroom(*args, **kw):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     return subprocess.Popen([sys.executable, "-m", "app.cli", *map(str, args)], stdout=subprocess.PIPE,

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from app.results import iter_voxels
-from tests.conftest import ROOT, smartroom, start_smartroom
+from tests.conftest import simulated, smartroom, start_smartroom
 from tests.synthetic import write_tiny_recording
 
 pytestmark = pytest.mark.integration
@@ -499,10 +499,7 @@ def test_a_worker_restarted_after_its_upstream_ended_still_finishes(long_recordi
 
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sim") / "walk1"
-    r = smartroom("simulate", "--scene", "walk1", "--seconds", 2, "--size", "320x240", "--out", out, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+    return simulated(tmp_path_factory, "walk1", 2)
 
 
 def test_tracks_and_poses_do_not_depend_on_machine_load(walk, tmp_path):
@@ -578,10 +575,7 @@ def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
 @pytest.fixture(scope="module")
 def meeting(tmp_path_factory):
     """6 s of meeting3 (150 frames, 2-3 people, two of them walking)."""
-    out = tmp_path_factory.mktemp("sim") / "meeting3"
-    r = smartroom("simulate", "--scene", "meeting3", "--seconds", 6, "--size", "320x240", "--out", out, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+    return simulated(tmp_path_factory, "meeting3", 6)
 
 
 TRACKING_LAYOUT = """room: faults

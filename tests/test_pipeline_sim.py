@@ -3,17 +3,14 @@ import json
 
 import pytest
 
-from tests.conftest import smartroom
+from tests.conftest import simulated, smartroom
 
 pytestmark = pytest.mark.integration
 
 
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sim") / "walk1"
-    r = smartroom("simulate", "--scene", "walk1", "--seconds", 2, "--size", "320x240", "--out", out, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+    return simulated(tmp_path_factory, "walk1", 2)
 
 
 def test_run_and_eval_reconstruction(walk, tmp_path):

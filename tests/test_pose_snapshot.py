@@ -1,6 +1,5 @@
 """A pose estimator saved mid-clip (app.pose.snapshot) and restored carries on exactly
 as if it had never stopped: what a restarted pose worker relies on."""
-import io
 
 import numpy as np
 import pytest
@@ -8,6 +7,7 @@ import pytest
 from app.pose.estimator import PoseEstimator, PoseSettings
 from app.pose.offline import simulated_clip
 from app.pose.snapshot import SnapshotError, estimator_state, restore_estimator
+from tests.conftest import through_npz
 
 
 @pytest.fixture(scope="module")
@@ -18,14 +18,6 @@ def clip():
 
 def _settings(cal, **kw):
     return PoseSettings(voxel_size=0.04, density=1, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max), **kw)
-
-
-def _through_file(arrays) -> dict:
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    buf.seek(0)
-    with np.load(buf, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
 
 
 def _step(est, fr):
@@ -41,7 +33,7 @@ def test_a_restored_estimator_carries_on_bit_for_bit(clip, method):
     cut = 11 if method.endswith("ddm") else 6     # DDM: after its lock-on (lock_frames 10)
     for fr in frames[:cut]:
         _step(whole, fr), _step(first, fr)
-    arrays = _through_file(estimator_state(first))
+    arrays = through_npz(estimator_state(first))
     del first
     again = restore_estimator(_settings(cal, method=method, **kw), arrays)
     assert set(again.people) == set(whole.people) and again.people
@@ -58,7 +50,7 @@ def test_a_snapshot_that_does_not_fit_is_refused(clip):
     est = PoseEstimator(_settings(cal))
     for fr in frames[:3]:
         _step(est, fr)
-    arrays = _through_file(estimator_state(est))
+    arrays = through_npz(estimator_state(est))
     with pytest.raises(SnapshotError, match="other pose settings"):
         restore_estimator(_settings(cal, gamma=40), arrays)
     tid = next(iter(est.people))

@@ -4,17 +4,14 @@ import json
 
 import pytest
 
-from tests.conftest import smartroom
+from tests.conftest import simulated, smartroom
 
 pytestmark = pytest.mark.integration
 
 
 @pytest.fixture(scope="module")
 def meeting(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sim") / "meeting3"
-    r = smartroom("simulate", "--scene", "meeting3", "--seconds", 5, "--size", "320x240", "--out", out, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return out
+    return simulated(tmp_path_factory, "meeting3", 5)
 
 
 def test_run_writes_tracks_that_score_against_ground_truth(meeting, tmp_path):

@@ -1,6 +1,5 @@
 """A multi-tracker saved mid-scene (app.tracking.snapshot) and restored carries on exactly
 as if it had never stopped: what a restarted tracking worker relies on."""
-import io
 import json
 
 import numpy as np
@@ -11,6 +10,7 @@ from app.tracking.classifier import load_tree
 from app.tracking.scene import OccupancyIndex, SceneFrame
 from app.tracking.snapshot import SnapshotError, restore_tracker, tracker_state
 from app.tracking.tracker import MultiTracker, TrackerParams
+from tests.conftest import through_npz
 from tests.test_tracking import DIMS, VS, crossing
 
 PARAMS = {"ss_colour": {}, "ss_raw": {}, "pf_colour": {"particles": 60}, "naive": {}}
@@ -30,14 +30,6 @@ def scenes():
     return out, tree
 
 
-def _through_file(arrays) -> dict:
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    buf.seek(0)
-    with np.load(buf, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
-
-
 @pytest.mark.parametrize("filt", sorted(PARAMS))
 def test_a_restored_tracker_carries_on_bit_for_bit(scenes, filt):
     frames, tree = scenes
@@ -47,7 +39,7 @@ def test_a_restored_tracker_carries_on_bit_for_bit(scenes, filt):
     for sc in frames[:cut]:
         whole.update(sc), first.update(sc)
     assert len(first.tracks) == 2
-    arrays = _through_file(tracker_state(first, DIMS))
+    arrays = through_npz(tracker_state(first, DIMS))
     size = sum(a.nbytes for a in arrays.values())
     assert size < 40_000, size   # sparse histograms: a few kB per track
     del first
@@ -67,7 +59,7 @@ def test_a_snapshot_that_does_not_fit_is_refused(scenes):
     t = MultiTracker(TrackerParams(), tree)
     for sc in frames[:12]:
         t.update(sc)
-    good = _through_file(tracker_state(t, DIMS))
+    good = through_npz(tracker_state(t, DIMS))
     restore_tracker(TrackerParams(), tree, good, DIMS)   # fits
 
     def bad(**change):
@@ -114,7 +106,7 @@ def test_after_a_gap_a_restored_tracker_finds_its_people_where_they_went():
     before = MultiTracker(TrackerParams(), tree)
     for v in frames[:11]:
         before.update(scene(v))
-    arrays = _through_file(tracker_state(before, DIMS))
+    arrays = through_npz(tracker_state(before, DIMS))
     assert sorted(t.id for t in before.tracks) == [1, 2]
     for relocate in (False, True):
         t = restore_tracker(TrackerParams(), tree, arrays, DIMS)
