@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import time
 from dataclasses import dataclass, field, replace
 
 import zenoh
@@ -141,6 +142,18 @@ class Publisher:
         cc = zenoh.CongestionControl.DROP if droppable else zenoh.CongestionControl.BLOCK
         self.key = key
         self._pub = session.declare_publisher(key, congestion_control=cc)
+
+    def await_subscriber(self, timeout: float) -> bool:
+        """Wait until the session knows a subscriber of this key (zenoh's matching status),
+        at most ``timeout`` seconds; whether one is known. A session that has not yet
+        learnt of a subscriber (a worker on another host that has just joined) sends its
+        first messages nowhere."""
+        deadline = time.monotonic() + timeout
+        while not self._pub.matching_status.matching:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.005)
+        return True
 
     def put(self, msg: Message) -> int:
         return self.put_payload(msg.to_bytes())

@@ -294,3 +294,31 @@ def test_a_run_over_mutual_tls_with_a_remote_worker_admits_it_and_not_an_intrude
     assert stats["stages"]["reconstruction"]["frames_out"] >= 48
     assert load_layout(out / "layout.yaml").bus.listen == [f"tls/127.0.0.1:{port}"]
     assert seen == []                                                  # the intruder saw nothing
+
+
+def test_a_publisher_waits_until_the_bus_routes_its_key_to_a_subscriber():
+    """A worker that joins a room through its hub (as from another host) learns of the
+    room's subscribers only after it connected; offline, its first message waits for that
+    (Publisher.await_subscriber) instead of going nowhere."""
+    from app.bus import Publisher
+    port = free_port()
+    hub = open_session(BusConfig(listen=[f"tcp/127.0.0.1:{port}"]))
+    late = None
+    try:
+        pub = Publisher(hub, "room/test/mask/cam0", droppable=False)
+        t0 = time.monotonic()
+        assert pub.await_subscriber(0.3) is False            # nobody there: it says so after the wait
+        assert time.monotonic() - t0 >= 0.3
+        got = []
+        late = open_session(BusConfig(connect=[f"tcp/127.0.0.1:{port}"]))
+        late.declare_subscriber("room/test/mask/*", lambda s: got.append(s.payload.to_bytes()))
+        assert pub.await_subscriber(10.0) is True            # the subscriber's declaration reached the hub
+        pub.put_payload(b"first")
+        deadline = time.monotonic() + 5
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert got == [b"first"]
+    finally:
+        if late is not None:
+            late.close()
+        hub.close()

@@ -66,6 +66,7 @@ MAX_KEYS = 64            # distinct keys an inbox holds queues for
 REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent again to a consumer that restarted
 REPLAY_BYTES = 64 << 20  # ... at most this much of them (HD frames)
 REPLAY_DELAY_S = 0.2     # after a restarted consumer's token appears (its subscriptions are declared before)
+SUBSCRIBER_WAIT_S = 5.0  # offline: a new publisher waits at most this long for the bus to route its key to a consumer
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
 EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
@@ -328,6 +329,12 @@ class Worker:
         if pub is None:
             droppable = self.DROP_OUTPUT and not self.lossless
             pub = self._publishers[key] = Publisher(self.session, key, droppable=droppable)
+            # offline nothing may be lost: the first message waits until the bus has routed
+            # this key to a consumer (a stage on another host that has just joined sent its
+            # first masks nowhere, and the run waited for them forever)
+            if self.lossless and self._consumers() and not pub.await_subscriber(SUBSCRIBER_WAIT_S):
+                self.log.warning("no consumer of %s on the bus after %.0f s: publishing anyway", key,
+                                 SUBSCRIBER_WAIT_S)
         if not msg.epoch:
             msg.epoch = self._epoch
         payload = msg.to_bytes()
