@@ -11,7 +11,7 @@ import yaml
 
 from app.errors import InputError
 
-__all__ = ["partial_path", "write_atomic", "write_json", "read_yaml", "read_jsonl"]
+__all__ = ["partial_path", "write_atomic", "write_json", "read_yaml", "read_jsonl", "json_entry", "read_json_entry"]
 
 
 def partial_path(path) -> Path:
@@ -32,6 +32,23 @@ def write_atomic(path, data: str | bytes) -> None:
 
 def write_json(path, data, indent: int | None = 1) -> None:
     write_atomic(path, json.dumps(data, indent=indent))
+
+
+def json_entry(data):
+    """``data`` as JSON in a 0-d string array: an entry of a state file of named arrays
+    (``numpy.savez``) that loads without pickles."""
+    import numpy as np
+    return np.array(json.dumps(data))
+
+
+def read_json_entry(arrays, key: str):
+    """What :func:`json_entry` stored under ``key``; ``ValueError`` (or ``KeyError`` when
+    missing) for anything else."""
+    import numpy as np
+    try:
+        return json.loads(str(np.asarray(arrays[key])[()]))
+    except (TypeError, IndexError) as exc:
+        raise ValueError(f"{key} is not a JSON entry ({type(exc).__name__})") from None
 
 
 def read_yaml(path, what: str, error=InputError):

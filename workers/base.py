@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
-from app.files import write_json
+from app.files import json_entry, read_json_entry, write_atomic, write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import FrameSet, StageLedger
 
@@ -205,6 +205,7 @@ class Worker:
         self._inputs: dict[tuple[str, str, int], FrameSet] = {}  # (key, sender, epoch) -> frames handled
         self._earlier: dict | None = None        # the earlier incarnation's state arrays (earlier_arrays)
         self._snapshot_ms: deque = deque(maxlen=100)
+        self._caught_up: list[int] = []         # frames the stage advanced through unpublished (catch_up)
         self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
 
     # -- what subclasses provide ------------------------------------------------------
@@ -282,9 +283,7 @@ class Worker:
         """``arrays`` marked as the state after ``frame`` (time ``t``, s) of ``epoch`` in
         ``stream`` (JSON-able facts the state depends on: grid, parameters), for
         :meth:`earlier_arrays`."""
-        import numpy as np
-        arrays["worker"] = np.array(json.dumps({"epoch": int(epoch), "frame": int(frame), "t": float(t),
-                                                "stream": stream}))
+        arrays["worker"] = json_entry({"epoch": int(epoch), "frame": int(frame), "t": float(t), "stream": stream})
         return arrays
 
     @property
@@ -305,7 +304,7 @@ class Worker:
             if msg is None:
                 raise ValueError("the source restarted (a new epoch)")
             try:
-                mine = json.loads(str(arrays["worker"][()]))
+                mine = read_json_entry(arrays, "worker")
                 epoch, frame, t, theirs = int(mine["epoch"]), int(mine["frame"]), float(mine["t"]), mine["stream"]
             except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
                 raise ValueError(f"no readable stamp ({type(exc).__name__})") from None
@@ -321,7 +320,18 @@ class Worker:
     def catch_up(self, key: str, msg: Message) -> None:
         """An input of a frame an earlier incarnation of this worker put out (sent again
         after the restart): advance the stage's state through it without publishing
-        (default: skip it). Called in frame order, before the frames after them."""
+        (default: skip it; a stage that advances says so with :meth:`caught_up_on`).
+        Called in frame order, before the frames after them."""
+
+    def caught_up_on(self, frame: int) -> None:
+        """The stage advanced its state through ``frame`` without publishing it; said in
+        one line when it publishes again."""
+        self._caught_up.append(frame)
+
+    @property
+    def caught_up_frames(self) -> int:
+        """Frames caught up on since the stage last published."""
+        return len(self._caught_up)
 
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
@@ -335,6 +345,10 @@ class Worker:
             if self.lossless and self._consumers() and not pub.await_subscriber(SUBSCRIBER_WAIT_S):
                 self.log.warning("no consumer of %s on the bus after %.0f s: publishing anyway", key,
                                  SUBSCRIBER_WAIT_S)
+        if self._caught_up:
+            self.log.warning("caught up on frames %d-%d (%d) without publishing them", self._caught_up[0],
+                             self._caught_up[-1], len(self._caught_up))
+            self._caught_up = []
         if not msg.epoch:
             msg.epoch = self._epoch
         payload = msg.to_bytes()
@@ -676,13 +690,13 @@ class Worker:
             arrays = self.state_arrays()
             if arrays is None:
                 return
+            import io
+
             import numpy as np
-            path = path.with_suffix(".npz")
-            tmp = path.with_name(path.name + ".partial")
+            buf = io.BytesIO()
+            np.savez(buf, **arrays)
             path.parent.mkdir(parents=True, exist_ok=True)
-            with open(tmp, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, path)
+            write_atomic(path.with_suffix(".npz"), buf.getvalue())
             self._snapshot_ms.append((time.perf_counter() - t0) * 1e3)
         except OSError as exc:   # a full disk must not kill the stage
             self.log.debug("cannot save state arrays: %s", exc)

@@ -139,7 +139,6 @@ class Pose(Worker):
         self.at = None                 # (epoch, frame, t, grid) of the last frame the estimator took in
         self.saved_at = None           # ... of the last snapshot saved
         self.catching = False          # restored: posing the frames put out before, unpublished
-        self.caught_up: list[int] = []
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
         if self.settings.ik == "table":
@@ -176,12 +175,15 @@ class Pose(Worker):
     def _take_over(self, msg: Voxels | None) -> None:
         """Restore the earlier incarnation's estimator if its snapshot fits this stream
         (epoch, grid, settings); otherwise say why, once, and start afresh."""
+        if not self.earlier_pending:
+            return
         grid = self._grid(msg) if msg is not None else None
         earlier = self.earlier_arrays(msg, "the pose filters", grid=grid)
         if earlier is None:
             return
         from app.pose.snapshot import SnapshotError, restore_estimator
-        (arrays, mine), frame = earlier, earlier[1]["frame"]
+        arrays, mine = earlier
+        frame = mine["frame"]
         try:
             est = restore_estimator(self._settings_for(grid), arrays)
         except SnapshotError as exc:
@@ -242,15 +244,11 @@ class Pose(Worker):
 
     def _pose(self, vox: Voxels, tracks: Tracks) -> None:
         publish = vox.frame not in self.ledger.done   # put out by the earlier incarnation: catching up
-        if self.catching and not self.caught_up and vox.frame > self.done + 1:
+        if self.catching and not self.caught_up_frames and vox.frame > self.done + 1:
             self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
                              self.done + 1, vox.frame - 1)
         if publish and self.catching:
-            self.catching = False
-            if self.caught_up:
-                self.log.warning("caught up on frames %d-%d (%d) without publishing them", self.caught_up[0],
-                                 self.caught_up[-1], len(self.caught_up))
-                self.caught_up = []
+            self.catching = False   # the caught-up frames are said when it publishes (Worker.publish)
         self.done = vox.frame
         try:
             self._estimate(vox, tracks, publish)
@@ -258,7 +256,7 @@ class Pose(Worker):
             if publish:
                 self.finished(vox.frame)   # older frames still waiting are given up with it
             else:
-                self.caught_up.append(vox.frame)
+                self.caught_up_on(vox.frame)
         self.at = (vox.epoch, vox.frame, vox.t, self.grid)
         if publish and vox.frame % int(self.params["snapshot_frames"]) == 0:
             self.save_arrays()

@@ -70,7 +70,6 @@ class Tracking(Worker):
         self.at = None           # (epoch, frame, t, dims) of the last frame the tracker took in
         self.saved_at = None     # ... of the last snapshot saved
         self.resumed = None      # (frame, t) of the snapshot restored, until the first frame after it
-        self.caught_up: list[int] = []
 
     def new_epoch(self, epoch: int) -> None:
         self._take_over(None)    # a snapshot belongs to its epoch's frame numbers
@@ -81,6 +80,8 @@ class Tracking(Worker):
     def _take_over(self, msg: Blobs | None) -> None:
         """Restore the earlier incarnation's tracker if its snapshot fits this stream
         (epoch, grid, parameters); otherwise say why, once, and start afresh."""
+        if not self.earlier_pending:
+            return
         earlier = self.earlier_arrays(msg, "the tracker", **self._stream(msg.dims if msg is not None else ()))
         if earlier is None:
             return
@@ -139,14 +140,10 @@ class Tracking(Worker):
         if self.at is None or self.at[0] != msg.epoch or msg.frame <= self.at[1]:
             return               # no snapshot (a fresh tracker: the old behaviour), or in it already
         self._update(msg)
-        self.caught_up.append(msg.frame)
+        self.caught_up_on(msg.frame)
 
     def handle(self, key: str, msg: Blobs) -> None:
         ids, positions = self._update(msg)
-        if self.caught_up:
-            self.log.warning("caught up on frames %d-%d (%d) without publishing them", self.caught_up[0],
-                             self.caught_up[-1], len(self.caught_up))
-            self.caught_up = []
         self.counts.append(len(ids))
         same = {"epoch": msg.epoch} if hasattr(msg, "epoch") else {}
         self.publish(self.keys.tracks(), Tracks(**same, frame=msg.frame, stamp=msg.stamp, t=msg.t,

@@ -21,6 +21,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from app.files import json_entry, read_json_entry
 from app.pose.estimator import PersonPose, PoseEstimator, PoseSettings
 from app.pose.filters import SHBMAPF
 from app.pose.flesh import LIMBS
@@ -72,7 +73,7 @@ def estimator_state(est: PoseEstimator) -> dict[str, np.ndarray]:
                 arrays[f"p{tid}.scout.{u}"] = np.asarray(s, dtype=np.float64)
         people.append(entry)
     meta = {"format": FORMAT, "settings": _settings_key(est.settings), "people": people}
-    arrays["meta"] = np.array(json.dumps(meta))
+    arrays["meta"] = json_entry(meta)
     return arrays
 
 
@@ -99,8 +100,8 @@ def restore_estimator(settings: PoseSettings, arrays) -> PoseEstimator:
     """An estimator in the state :func:`estimator_state` saved, for ``settings`` (the
     snapshot's settings must be the same); :class:`SnapshotError` if it does not fit."""
     try:
-        meta = json.loads(str(np.asarray(arrays["meta"])[()]))
-    except (KeyError, ValueError, TypeError) as exc:
+        meta = read_json_entry(arrays, "meta")
+    except (KeyError, ValueError) as exc:
         raise SnapshotError(f"pose snapshot: no readable meta ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise SnapshotError("pose snapshot: not a smartroom pose state")

@@ -24,6 +24,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from app.files import json_entry, read_json_entry
 from app.tracking.naive import NaiveTarget
 from app.tracking.particle import ParticleTarget
 from app.tracking.scene import BINS
@@ -83,7 +84,7 @@ def tracker_state(tracker: MultiTracker, dims=None) -> dict[str, np.ndarray]:
     meta = {"format": FORMAT, "params": params_key(tracker.p), "dims": None if dims is None else [int(d) for d in dims],
             "next_id": int(tracker.next_id), "deleted": int(tracker.deleted), "rng": tracker.rng.bit_generator.state,
             "tracks": tracks, "sightings": [[int(a), int(b)] for _, a, b in tracker.candidates], "ended": ended}
-    arrays["meta"] = np.array(json.dumps(meta))
+    arrays["meta"] = json_entry(meta)
     return arrays
 
 
@@ -151,8 +152,8 @@ def _target(tracker: MultiTracker, arrays, k: int, entry: dict, dims):
 def read_meta(arrays) -> dict:
     """The snapshot's meta (format checked), or :class:`SnapshotError`."""
     try:
-        meta = json.loads(str(np.asarray(arrays["meta"])[()]))
-    except (KeyError, ValueError, TypeError) as exc:
+        meta = read_json_entry(arrays, "meta")
+    except (KeyError, ValueError) as exc:
         raise SnapshotError(f"tracker snapshot: no readable meta ({type(exc).__name__})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise SnapshotError("tracker snapshot: not a smartroom tracker state")
