@@ -683,3 +683,33 @@ def test_a_damaged_tracker_snapshot_is_one_log_line_and_a_fresh_start(meeting, t
     assert len(lines) == 1 and "not readable" in lines[0] and "Traceback" not in err, err[-2000:]
     assert "tracker restored" not in err
     assert [json.loads(line)["frame"] for line in open(out / "tracks.jsonl")] == list(range(100))
+
+
+def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, tmp_path, monkeypatch):
+    """A worker killed between ``put()`` and zenoh sending the message: its journal says
+    the frame is out, the consumers never got it. The restarted worker puts its newest
+    frame out again: the tracking worker works frame 57 anew (its snapshot is of 56), the
+    pose worker sends frame 84's poses kept with its snapshot (of 84 itself). Nothing is
+    missing; the files are those of an undisturbed run."""
+    layout = tmp_path / "layout.yaml"
+    layout.write_text(TRACKING_LAYOUT + POSE_WORKER)
+    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout,
+                  "--out", tmp_path / "calm", timeout=120)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "lost"
+    monkeypatch.setenv("SMARTROOM_LOSE_OUTPUT", "tracking:57,pose:84")
+    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout, "--out", out,
+                  timeout=180)
+    err = r.stderr
+    print("\n".join(line for line in err.splitlines() if "[tracking]" in line or "[pose]" in line))
+    assert r.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1 and s["stages"]["pose"]["restarts"] == 1
+    assert "put out frame 57 again" in err and "put out frame 84 again from the state arrays" in err, err[-3000:]
+    for name in ("tracking", "pose"):
+        st = s["stages"][name]
+        assert (st["frames_in"], st["frames_out"], st["frames_missing"], st["frames_dropped"]) == (150, 150, 0, 0), st
+    for name in ("tracks.jsonl", "poses.jsonl"):
+        calm, got = ([json.loads(line) for line in open(d / name)] for d in (tmp_path / "calm", out))
+        assert [f["frame"] for f in got] == list(range(150)), name
+        assert (out / name).read_bytes() == (tmp_path / "calm" / name).read_bytes(), name

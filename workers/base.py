@@ -25,7 +25,10 @@ no frame. A stage whose outputs depend on the frames before (a tracker, a filter
 its state as named arrays (:meth:`Worker.state_arrays`, ``<out>/state/<name>.npz``, no
 pickles), and its restarted incarnation advances that state through the frames its
 earlier incarnation put out after the snapshot (:meth:`Worker.catch_up`, fed from what is
-sent again) instead of skipping them. Live, inboxes are latest-frame-wins and every drop
+sent again) instead of skipping them. The newest frame it put out is put out again (the
+journal says "out" when ``put()`` returns, and a worker killed then may not have sent it):
+worked on anew, or, where the snapshot is of that frame, from the outputs kept with it;
+consumers skip it if it had arrived. Live, inboxes are latest-frame-wins and every drop
 is counted.
 
 Everything received is validated (codec, the type's ``validate()``, the frame window
@@ -67,6 +70,10 @@ REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent a
 REPLAY_BYTES = 64 << 20  # ... at most this much of them (HD frames)
 REPLAY_DELAY_S = 0.2     # after a restarted consumer's token appears (its subscriptions are declared before)
 SUBSCRIBER_WAIT_S = 5.0  # offline: a new publisher waits at most this long for the bus to route its key to a consumer
+#: tests only, ``<worker>:<frame>[,...]``: the first incarnation of ``<worker>`` keeps its output of
+#: ``<frame>`` off the bus (as if killed between ``put()`` and zenoh sending it) and is killed
+#: (SIGKILL) once it has handled that input
+FAILPOINT_ENV = "SMARTROOM_LOSE_OUTPUT"
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
 EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
@@ -206,6 +213,15 @@ class Worker:
         self._earlier: dict | None = None        # the earlier incarnation's state arrays (earlier_arrays)
         self._snapshot_ms: deque = deque(maxlen=100)
         self._caught_up: list[int] = []         # frames the stage advanced through unpublished (catch_up)
+        #: the newest frame an earlier incarnation put out: its outputs may not have left before
+        #: it died, so it is put out again (worked on anew, or the outputs kept with the state arrays)
+        self._redo: int | None = None
+        self._redo_outputs: list[tuple[str, bytes]] = []
+        self._redo_epoch = 0
+        lose = [f for w, _, f in (p.rpartition(":") for p in os.environ.get(FAILPOINT_ENV, "").split(","))
+                if w == self.name and f.isdigit()]
+        self._lose = int(lose[0]) if lose else None   # FAILPOINT_ENV
+        self._killed_after_handle = False
         self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
 
     # -- what subclasses provide ------------------------------------------------------
@@ -284,6 +300,11 @@ class Worker:
         ``stream`` (JSON-able facts the state depends on: grid, parameters), for
         :meth:`earlier_arrays`."""
         arrays["worker"] = json_entry({"epoch": int(epoch), "frame": int(frame), "t": float(t), "stream": stream})
+        import numpy as np
+        outputs = self._replay.get(int(frame), [])   # offline: put out again if they never left (_put_out_again)
+        arrays["worker_outputs"] = json_entry([key for key, _ in outputs])
+        for i, (_, payload) in enumerate(outputs):
+            arrays[f"worker_output{i}"] = np.frombuffer(payload, dtype=np.uint8)
         return arrays
 
     @property
@@ -335,6 +356,29 @@ class Worker:
 
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
+        pub = self._publisher(key)
+        if self._caught_up:
+            self.log.warning("caught up on frames %d-%d (%d) without publishing them", self._caught_up[0],
+                             self._caught_up[-1], len(self._caught_up))
+            self._caught_up = []
+        if not msg.epoch:
+            msg.epoch = self._epoch
+        payload = msg.to_bytes()
+        with self._publish_lock:
+            if msg.frame == self._lose and self.incarnation == 0:
+                self._killed_after_handle = True     # FAILPOINT_ENV: lost on the way to the bus
+            else:
+                pub.put_payload(payload)
+            if self.lossless:
+                self._keep_for_replay(msg.frame, key, payload)
+        again = msg.frame == self._redo   # counted by the earlier incarnation
+        if again:
+            self._redo = None
+            self.log.warning("put out frame %d again (its outputs may not have left before the restart)", msg.frame)
+        if counts and not again:
+            self.ledger.emitted(msg.frame, msg.stamp)
+
+    def _publisher(self, key: str) -> Publisher:
         pub = self._publishers.get(key)
         if pub is None:
             droppable = self.DROP_OUTPUT and not self.lossless
@@ -345,19 +389,7 @@ class Worker:
             if self.lossless and self._consumers() and not pub.await_subscriber(SUBSCRIBER_WAIT_S):
                 self.log.warning("no consumer of %s on the bus after %.0f s: publishing anyway", key,
                                  SUBSCRIBER_WAIT_S)
-        if self._caught_up:
-            self.log.warning("caught up on frames %d-%d (%d) without publishing them", self._caught_up[0],
-                             self._caught_up[-1], len(self._caught_up))
-            self._caught_up = []
-        if not msg.epoch:
-            msg.epoch = self._epoch
-        payload = msg.to_bytes()
-        with self._publish_lock:
-            pub.put_payload(payload)
-            if self.lossless:
-                self._keep_for_replay(msg.frame, key, payload)
-        if counts:
-            self.ledger.emitted(msg.frame, msg.stamp)
+        return pub
 
     # -- outputs sent again to a consumer that restarted (offline) ------------------------
     def _keep_for_replay(self, frame: int, key: str, payload: bytes) -> None:
@@ -403,19 +435,37 @@ class Worker:
         if not frames.add(msg.frame):
             self.repeats_skipped += 1
             return True
-        if not self._finished_before(msg):
-            return False
+        if getattr(msg, "camera", None) is not None or not self.put_out_before(msg.frame):
+            return False         # per-camera inputs are handled one by one (a frame may be out for some cameras)
         self.repeats_skipped += 1
         self._follow_epoch(msg)
+        if msg.frame == self._redo:
+            self._put_out_again(msg)
         self.catch_up(key, msg)
         return True
 
-    def _finished_before(self, msg: Message) -> bool:
-        """A frame an earlier incarnation of this worker put out (its ledger comes back from
-        the journal): not worked on again. Per-camera inputs are handled one by one (a frame
-        may have been put out for some cameras only)."""
-        return (self.SKIPS_FINISHED and self.incarnation > 0 and getattr(msg, "camera", None) is None
-                and msg.frame in self.ledger.done)
+    def put_out_before(self, frame: int) -> bool:
+        """An earlier incarnation of this worker put ``frame`` out (its ledger comes back from
+        the journal): not worked on again. Except the newest such frame when its outputs were
+        not kept with the state arrays: the journal says "put out" when ``put()`` returns, and
+        a worker killed then may not have sent it yet; it is worked on again and put out
+        again (consumers skip repeats)."""
+        return (self.SKIPS_FINISHED and self.incarnation > 0 and frame in self.ledger.done
+                and not (frame == self._redo and not self._redo_outputs))
+
+    def _put_out_again(self, msg: Message) -> None:
+        """The outputs of the newest frame put out before the restart, kept with the state
+        arrays (the state is of that very frame: it cannot be worked on again)."""
+        outputs, self._redo_outputs, self._redo = self._redo_outputs, [], None
+        if msg.epoch != self._redo_epoch:
+            return               # of another stream
+        pubs = [self._publisher(key) for key, _ in outputs]
+        with self._publish_lock:
+            for pub, (key, payload) in zip(pubs, outputs):
+                pub.put_payload(payload)
+                if self.lossless:
+                    self._keep_for_replay(msg.frame, key, payload)
+        self.log.warning("put out frame %d again from the state arrays (%d messages)", msg.frame, len(outputs))
 
     def finished(self, frame: int) -> None:
         """This stage is done with ``frame`` (put out, or given up): an unpaced or
@@ -714,7 +764,25 @@ class Worker:
             self.log.warning("state arrays %s not readable (%s): starting afresh", path.name,
                              str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
             return
+        self._redo_outputs = self._outputs_of(arrays)
         self._earlier = arrays   # taken over by the stage with its first input (earlier_arrays)
+
+    def _outputs_of(self, arrays: dict) -> list[tuple[str, bytes]]:
+        """The outputs kept with the state arrays (taken out of them) if the state is of the
+        newest frame put out (:meth:`_put_out_again`); else none."""
+        keys = [k for k in arrays if k.startswith("worker_output")]
+        entries = {k: arrays.pop(k) for k in keys}
+        try:
+            mine = read_json_entry(arrays, "worker")
+            names = read_json_entry(entries, "worker_outputs")
+            if int(mine["frame"]) != self._redo or not isinstance(names, list):
+                return []
+            self._redo_epoch = int(mine["epoch"])
+            outputs = [(str(names[i]), entries[f"worker_output{i}"].tobytes()) for i in range(len(names))]
+        except (KeyError, ValueError, TypeError, IndexError, AttributeError):
+            return []
+        mine = {self.keys.stage(stage) for stage in self.PRODUCES if stage not in self.PER_CAMERA}
+        return [(k, p) for k, p in outputs if k in mine]
 
     def _journal(self, kind: str, frame: int) -> None:
         if self._journal_fd is not None:
@@ -740,6 +808,8 @@ class Worker:
         except OSError:
             pass
         self.ledger.restore(state.get("ledger") or {}, journal)
+        if self.ledger.newest_out >= 0 and self.PRODUCES:   # a sink's outputs are its files
+            self._redo = self.ledger.newest_out
         self.rejections.restore(state.get("rejected"))
         self.ledger.bad_messages = self.rejections.total
         self.restore_state(state.get("stage") or {})
@@ -780,6 +850,8 @@ class Worker:
                 self.ledger.received(msg.frame, msg.stamp)
                 t0 = time.perf_counter()
                 self.handle(key, msg)
+                if self._killed_after_handle:   # FAILPOINT_ENV
+                    os.kill(os.getpid(), signal.SIGKILL)
                 self.ledger.processed(time.perf_counter() - t0, msg.frame)
                 if self.ACK_ON_HANDLE:
                     self.finished(msg.frame)

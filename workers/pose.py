@@ -243,7 +243,7 @@ class Pose(Worker):
                     del d[f]
 
     def _pose(self, vox: Voxels, tracks: Tracks) -> None:
-        publish = vox.frame not in self.ledger.done   # put out by the earlier incarnation: catching up
+        publish = not self.put_out_before(vox.frame)   # put out by the earlier incarnation: catching up
         if self.catching and not self.caught_up_frames and vox.frame > self.done + 1:
             self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
                              self.done + 1, vox.frame - 1)

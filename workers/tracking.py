@@ -143,6 +143,10 @@ class Tracking(Worker):
         self.caught_up_on(msg.frame)
 
     def handle(self, key: str, msg: Blobs) -> None:
+        self._take_over(msg)
+        if self.at is not None and self.at[0] == msg.epoch and msg.frame <= self.at[1]:
+            self.log.warning("frame %d is in the restored tracker already: not tracked again", msg.frame)
+            return
         ids, positions = self._update(msg)
         self.counts.append(len(ids))
         same = {"epoch": msg.epoch} if hasattr(msg, "epoch") else {}
