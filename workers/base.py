@@ -17,19 +17,11 @@ stream from a worker that keeps running is discarded.
 
 Offline (a recording) nothing is dropped: inboxes are deep, outputs block instead of
 dropping, and the source is paced by the stages' acknowledgements, so a run gives the
-same results on an idle and on a loaded machine. A worker that dies loses what was in
-its inbox; offline, every worker keeps its outputs of the last :data:`REPLAY_FRAMES`
-frames and sends them again when a consumer of them comes back from a crash, and every
-worker skips an input (key, sender, frame) it has handled already, so a restart loses
-no frame. A stage whose outputs depend on the frames before (a tracker, a filter) saves
-its state as named arrays (:meth:`Worker.state_arrays`, ``<out>/state/<name>.npz``, no
-pickles), and its restarted incarnation advances that state through the frames its
-earlier incarnation put out after the snapshot (:meth:`Worker.catch_up`, fed from what is
-sent again) instead of skipping them. The newest frame it put out is put out again (the
-journal says "out" when ``put()`` returns, and a worker killed then may not have sent it):
-worked on anew, or, where the snapshot is of that frame, from the outputs kept with it;
-consumers skip it if it had arrived. Live, inboxes are latest-frame-wins and every drop
-is counted.
+same results on an idle and on a loaded machine. What a worker carries across a crash
+(counts, the stage's state and snapshots, outputs sent again to a consumer that
+restarted, repeats skipped, its last frame put out again) is :mod:`workers.restarts`,
+so a restart loses no frame. Live, inboxes are latest-frame-wins and every drop is
+counted.
 
 Everything received is validated (codec, the type's ``validate()``, the frame window
 and epoch of its stream, and the stage's own :meth:`Worker.admit`); what fails is
@@ -50,9 +42,10 @@ from typing import TYPE_CHECKING, ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
-from app.files import json_entry, read_json_entry, write_atomic, write_json
+from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
-from app.stats import FrameSet, StageLedger
+from app.stats import StageLedger
+from workers.restarts import Restarts
 
 if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
     from app.config import Layout, WorkerSpec
@@ -66,14 +59,7 @@ EOS_CONFIRM_S = 10.0     # an end of stream counts when its sender leaves the bu
                          # machine may take seconds to carry the liveliness change of a worker on another host)
 LOSSLESS_DEPTH = 256     # inbox depth per key offline (flow control keeps it far below)
 MAX_KEYS = 64            # distinct keys an inbox holds queues for
-REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent again to a consumer that restarted
-REPLAY_BYTES = 64 << 20  # ... at most this much of them (HD frames)
-REPLAY_DELAY_S = 0.2     # after a restarted consumer's token appears (its subscriptions are declared before)
 SUBSCRIBER_WAIT_S = 5.0  # offline: a new publisher waits at most this long for the bus to route its key to a consumer
-#: tests only, ``<worker>:<frame>[,...]``: the first incarnation of ``<worker>`` keeps its output of
-#: ``<frame>`` off the bus (as if killed between ``put()`` and zenoh sending it) and is killed
-#: (SIGKILL) once it has handled that input
-FAILPOINT_ENV = "SMARTROOM_LOSE_OUTPUT"
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
 EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
@@ -138,7 +124,7 @@ class Inbox:
             self.cond.notify_all()
 
 
-class Worker:
+class Worker(Restarts):
     """Base of every worker process (see module docstring)."""
 
     KIND: ClassVar[str] = ""
@@ -197,32 +183,12 @@ class Worker:
         self._epoch = 0                      # epoch of the input being handled (outputs inherit it)
         self._epoch_seen = False
         self._signal: int | None = None
-        self._journal_fd: int | None = None
-        self.ledger.journal = self._journal
         self.input_ended = False             # True once this worker's input has truly ended
-        self.incarnation = 0                 # restarts of this worker within the run
         self.early_signals: list[int] = []   # stop signals received while the process loaded (worker command)
         self.exit_code = EXIT_ENDED
         self._lock = threading.Lock()
         self._publish_lock = threading.Lock()
-        self._replay: dict[int, list[tuple[str, bytes]]] = {}   # offline: frame -> its outputs, oldest first
-        self._replay_bytes = 0
-        self._replay_to: set[str] | None = None  # consumers of this worker's outputs
-        self.resent = 0                          # messages sent again to restarted consumers
-        self._inputs: dict[tuple[str, str, int], FrameSet] = {}  # (key, sender, epoch) -> frames handled
-        self._earlier: dict | None = None        # the earlier incarnation's state arrays (earlier_arrays)
-        self._snapshot_ms: deque = deque(maxlen=100)
-        self._caught_up: list[int] = []         # frames the stage advanced through unpublished (catch_up)
-        #: the newest frame an earlier incarnation put out: its outputs may not have left before
-        #: it died, so it is put out again (worked on anew, or the outputs kept with the state arrays)
-        self._redo: int | None = None
-        self._redo_outputs: list[tuple[str, bytes]] = []
-        self._redo_epoch = 0
-        lose = [f for w, _, f in (p.rpartition(":") for p in os.environ.get(FAILPOINT_ENV, "").split(","))
-                if w == self.name and f.isdigit()]
-        self._lose = int(lose[0]) if lose else None   # FAILPOINT_ENV
-        self._killed_after_handle = False
-        self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
+        self._init_restarts()
 
     # -- what subclasses provide ------------------------------------------------------
     @property
@@ -280,80 +246,6 @@ class Worker:
     def tick(self) -> None:
         """Called on every turn of the loop (at least every 50 ms when idle)."""
 
-    def extra_state(self) -> dict:
-        """Stage state carried to the next incarnation after a crash (JSON-able)."""
-        return {}
-
-    def restore_state(self, state: dict) -> None:
-        """Take over what :meth:`extra_state` of an earlier incarnation returned."""
-
-    def state_arrays(self) -> dict | None:
-        """Stage state carried to the next incarnation as named numpy arrays (filter
-        samples, particles: too big or too numeric for the JSON state), saved with the
-        state every ``STATE_PERIOD_S`` and whenever the stage calls :meth:`save_arrays`;
-        None: nothing new since the last save. No object arrays (loading runs no code).
-        Stamped with :meth:`stamp_arrays`, taken over with :meth:`earlier_arrays`."""
-        return None
-
-    def stamp_arrays(self, arrays: dict, epoch: int, frame: int, t: float, **stream) -> dict:
-        """``arrays`` marked as the state after ``frame`` (time ``t``, s) of ``epoch`` in
-        ``stream`` (JSON-able facts the state depends on: grid, parameters), for
-        :meth:`earlier_arrays`."""
-        arrays["worker"] = json_entry({"epoch": int(epoch), "frame": int(frame), "t": float(t), "stream": stream})
-        import numpy as np
-        outputs = self._replay.get(int(frame), [])   # offline: put out again if they never left (_put_out_again)
-        arrays["worker_outputs"] = json_entry([key for key, _ in outputs])
-        for i, (_, payload) in enumerate(outputs):
-            arrays[f"worker_output{i}"] = np.frombuffer(payload, dtype=np.uint8)
-        return arrays
-
-    @property
-    def earlier_pending(self) -> bool:
-        """The earlier incarnation's state arrays are still to be taken over."""
-        return self._earlier is not None
-
-    def earlier_arrays(self, msg: Message | None, what: str, **stream) -> tuple[dict, dict] | None:
-        """The earlier incarnation's :meth:`state_arrays` (once; None after) with their stamp
-        (``{"epoch", "frame", "t", "stream"}``) if they belong to ``msg``'s stream: its epoch, the
-        same ``stream`` facts, and not ahead of ``msg`` unless ``msg`` was put out by that
-        incarnation already. Otherwise one log line saying why and that ``what`` starts
-        afresh (``msg`` None: the source restarted), and None."""
-        arrays, self._earlier = self._earlier, None
-        if arrays is None:
-            return None
-        try:
-            if msg is None:
-                raise ValueError("the source restarted (a new epoch)")
-            try:
-                mine = read_json_entry(arrays, "worker")
-                epoch, frame, t, theirs = int(mine["epoch"]), int(mine["frame"]), float(mine["t"]), mine["stream"]
-            except (KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-                raise ValueError(f"no readable stamp ({type(exc).__name__})") from None
-            if epoch != msg.epoch or theirs != json.loads(json.dumps(stream)):
-                raise ValueError(f"of epoch {epoch}, {theirs}: not this stream's")
-            if msg.frame <= frame and msg.frame not in self.ledger.done:
-                raise ValueError(f"of frame {frame}, ahead of frame {msg.frame}")
-        except ValueError as exc:
-            self.log.warning("state arrays %s: %s starts afresh", exc, what)
-            return None
-        return arrays, {"epoch": epoch, "frame": frame, "t": t, "stream": theirs}
-
-    def catch_up(self, key: str, msg: Message) -> None:
-        """An input of a frame an earlier incarnation of this worker put out (sent again
-        after the restart): advance the stage's state through it without publishing
-        (default: skip it; a stage that advances says so with :meth:`caught_up_on`).
-        Called in frame order, before the frames after them."""
-
-    def caught_up_on(self, frame: int) -> None:
-        """The stage advanced its state through ``frame`` without publishing it; said in
-        one line when it publishes again."""
-        self._caught_up.append(frame)
-
-    @property
-    def caught_up_frames(self) -> int:
-        """Frames caught up on since the stage last published."""
-        return len(self._caught_up)
-
     # -- services for subclasses ---------------------------------------------------
     def publish(self, key: str, msg: Message, counts: bool = True) -> None:
         pub = self._publisher(key)
@@ -390,82 +282,6 @@ class Worker:
                 self.log.warning("no consumer of %s on the bus after %.0f s: publishing anyway", key,
                                  SUBSCRIBER_WAIT_S)
         return pub
-
-    # -- outputs sent again to a consumer that restarted (offline) ------------------------
-    def _keep_for_replay(self, frame: int, key: str, payload: bytes) -> None:
-        """Keep the outputs of the last :data:`REPLAY_FRAMES` frames: what was in flight to a
-        consumer when it died (its inbox) is lost with it, and is sent again when it is back."""
-        self._replay.setdefault(frame, []).append((key, payload))
-        self._replay_bytes += len(payload)
-        while len(self._replay) > REPLAY_FRAMES or (self._replay_bytes > REPLAY_BYTES and len(self._replay) > 1):
-            oldest = next(iter(self._replay))
-            self._replay_bytes -= sum(len(p) for _, p in self._replay.pop(oldest))
-
-    def _consumers(self) -> set[str]:
-        """Workers of the layout that take this worker's outputs (and acknowledge or keep them)."""
-        if self._replay_to is None:
-            from workers import upstream_of, worker_class
-            mine = set(self.PRODUCES)
-            self._replay_to = {w.name for w in self.layout.workers
-                               if w.name != self.name and not worker_class(w.kind).DISPLAY
-                               and mine & worker_class(w.kind).consumes(w)
-                               and self.name in upstream_of(self.layout, w)}
-        return self._replay_to
-
-    def _resend(self, name: str) -> None:
-        """``name`` is back after a crash: send the kept outputs again (it skips what its
-        earlier incarnation finished; the other consumers skip them as repeats)."""
-        time.sleep(REPLAY_DELAY_S)
-        with self._publish_lock:
-            items = [(k, p) for frame in list(self._replay) for k, p in self._replay[frame]]
-            for key, payload in items:
-                self._publishers[key].put_payload(payload)
-            frames = sorted(self._replay)
-        self.resent += len(items)
-        if items:
-            self.log.info("%s is back: sent frames %d-%d again (%d messages)", name, frames[0], frames[-1], len(items))
-
-    def _repeated(self, key: str, msg: Message) -> bool:
-        """This input (key, sender, epoch, frame) was handled already: a stage sent it again
-        to a consumer that restarted, and every consumer of that key receives it."""
-        ident = (key, getattr(msg, "worker", "") or "", msg.epoch)   # a restarted source may send a frame again
-        frames = self._inputs.get(ident)
-        if frames is None:
-            frames = self._inputs[ident] = FrameSet()
-        if not frames.add(msg.frame):
-            self.repeats_skipped += 1
-            return True
-        if getattr(msg, "camera", None) is not None or not self.put_out_before(msg.frame):
-            return False         # per-camera inputs are handled one by one (a frame may be out for some cameras)
-        self.repeats_skipped += 1
-        self._follow_epoch(msg)
-        if msg.frame == self._redo:
-            self._put_out_again(msg)
-        self.catch_up(key, msg)
-        return True
-
-    def put_out_before(self, frame: int) -> bool:
-        """An earlier incarnation of this worker put ``frame`` out (its ledger comes back from
-        the journal): not worked on again. Except the newest such frame when its outputs were
-        not kept with the state arrays: the journal says "put out" when ``put()`` returns, and
-        a worker killed then may not have sent it yet; it is worked on again and put out
-        again (consumers skip repeats)."""
-        return (self.SKIPS_FINISHED and self.incarnation > 0 and frame in self.ledger.done
-                and not (frame == self._redo and not self._redo_outputs))
-
-    def _put_out_again(self, msg: Message) -> None:
-        """The outputs of the newest frame put out before the restart, kept with the state
-        arrays (the state is of that very frame: it cannot be worked on again)."""
-        outputs, self._redo_outputs, self._redo = self._redo_outputs, [], None
-        if msg.epoch != self._redo_epoch:
-            return               # of another stream
-        pubs = [self._publisher(key) for key, _ in outputs]
-        with self._publish_lock:
-            for pub, (key, payload) in zip(pubs, outputs):
-                pub.put_payload(payload)
-                if self.lossless:
-                    self._keep_for_replay(msg.frame, key, payload)
-        self.log.warning("put out frame %d again from the state arrays (%d messages)", msg.frame, len(outputs))
 
     def finished(self, frame: int) -> None:
         """This stage is done with ``frame`` (put out, or given up): an unpaced or
@@ -705,117 +521,6 @@ class Worker:
     def extra_figures(self) -> dict:
         """Stage-specific figures added to every stats message."""
         return {}
-
-    def _state_path(self) -> Path | None:
-        out = self.layout.run.out
-        return Path(out) / "state" / f"{self.name}.json" if out else None
-
-    def _save_state(self) -> None:
-        """The ledger and the stage's state, every ``STATE_PERIOD_S``; frames seen and
-        done in between go to an append-only journal (``<name>.frames``), so a worker
-        killed at any moment is restarted with exact frame counts."""
-        path = self._state_path()
-        if path is None:
-            return
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_json(path, {"incarnation": self.incarnation, "ledger": self.ledger.state(),
-                              "rejected": self.rejections.figures(), "stage": self.extra_state()}, indent=None)
-            if self._journal_fd is None:
-                self._journal_fd = os.open(path.with_suffix(".frames"), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-            os.ftruncate(self._journal_fd, 0)   # everything in it is in the state now
-        except OSError as exc:   # a full disk must not kill the stage; the recorder reports it
-            self.log.debug("cannot save state: %s", exc)
-        self.save_arrays()
-        self._last_state = time.monotonic()
-
-    def save_arrays(self) -> None:
-        """Save :meth:`state_arrays` now (``<out>/state/<name>.npz``, written to a temporary
-        file and renamed: a worker killed meanwhile leaves the previous snapshot whole)."""
-        path = self._state_path()
-        if path is None:
-            return
-        t0 = time.perf_counter()
-        try:
-            arrays = self.state_arrays()
-            if arrays is None:
-                return
-            import io
-
-            import numpy as np
-            buf = io.BytesIO()
-            np.savez(buf, **arrays)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_atomic(path.with_suffix(".npz"), buf.getvalue())
-            self._snapshot_ms.append((time.perf_counter() - t0) * 1e3)
-        except OSError as exc:   # a full disk must not kill the stage
-            self.log.debug("cannot save state arrays: %s", exc)
-
-    def _restore_arrays(self) -> None:
-        path = self._state_path()
-        path = path.with_suffix(".npz") if path is not None else None
-        if path is None or not path.is_file():
-            return
-        import numpy as np
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except Exception as exc:  # noqa: BLE001 - a damaged file (zip, header, pickled object) of any kind
-            self.log.warning("state arrays %s not readable (%s): starting afresh", path.name,
-                             str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
-            return
-        self._redo_outputs = self._outputs_of(arrays)
-        self._earlier = arrays   # taken over by the stage with its first input (earlier_arrays)
-
-    def _outputs_of(self, arrays: dict) -> list[tuple[str, bytes]]:
-        """The outputs kept with the state arrays (taken out of them) if the state is of the
-        newest frame put out (:meth:`_put_out_again`); else none."""
-        keys = [k for k in arrays if k.startswith("worker_output")]
-        entries = {k: arrays.pop(k) for k in keys}
-        try:
-            mine = read_json_entry(arrays, "worker")
-            names = read_json_entry(entries, "worker_outputs")
-            if int(mine["frame"]) != self._redo or not isinstance(names, list):
-                return []
-            self._redo_epoch = int(mine["epoch"])
-            outputs = [(str(names[i]), entries[f"worker_output{i}"].tobytes()) for i in range(len(names))]
-        except (KeyError, ValueError, TypeError, IndexError, AttributeError):
-            return []
-        mine = {self.keys.stage(stage) for stage in self.PRODUCES if stage not in self.PER_CAMERA}
-        return [(k, p) for k, p in outputs if k in mine]
-
-    def _journal(self, kind: str, frame: int) -> None:
-        if self._journal_fd is not None:
-            try:
-                os.write(self._journal_fd, f"{kind}{frame}\n".encode())
-            except OSError:
-                pass
-
-    def _restore_state(self) -> None:
-        path = self._state_path()
-        if path is None or not path.is_file():
-            return
-        try:
-            state = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return
-        self.incarnation = int(state.get("incarnation", 0)) + 1
-        journal = []
-        try:
-            for line in path.with_suffix(".frames").read_text(encoding="ascii", errors="replace").splitlines():
-                if line[:1] in ("i", "o") and line[1:].isdigit():
-                    journal.append((line[0], int(line[1:])))
-        except OSError:
-            pass
-        self.ledger.restore(state.get("ledger") or {}, journal)
-        if self.ledger.newest_out >= 0 and self.PRODUCES:   # a sink's outputs are its files
-            self._redo = self.ledger.newest_out
-        self.rejections.restore(state.get("rejected"))
-        self.ledger.bad_messages = self.rejections.total
-        self.restore_state(state.get("stage") or {})
-        self._restore_arrays()
-        self.log.warning("restarted (incarnation %d): carrying on from frame %d", self.incarnation,
-                         self.ledger.last_frame)
 
     def _periodic(self) -> None:
         now = time.monotonic()

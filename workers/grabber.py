@@ -22,7 +22,8 @@ from app.messages import Frame
 from app.recording import Recording
 from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
-from workers.base import REPLAY_DELAY_S, Worker
+from workers.base import Worker
+from workers.restarts import REPLAY_DELAY_S
 
 MISSING_WAIT_S = 60.0   # offline: how long a crashed stage is waited for before frames go on without it
 RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # offline: new frames wait this long after a worker is back from a crash

@@ -45,7 +45,8 @@ import numpy as np
 from app.errors import InputError
 from app.messages import Poses, Tracks, Voxels
 from app.pose.selection import pose_subset
-from workers.base import REPLAY_FRAMES, Worker
+from workers.base import Worker
+from workers.restarts import REPLAY_FRAMES
 
 KEEP_FRAMES = 8
 
