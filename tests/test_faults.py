@@ -621,17 +621,34 @@ def _snapshot_frame(out, name="tracking") -> int:
         return -1
 
 
-def test_killed_tracking_and_pose_workers_carry_on_as_if_never_stopped(meeting, tmp_path):
+@pytest.fixture(scope="module")
+def calm_meeting(meeting, tmp_path_factory):
+    """(layout, results) of an undisturbed run of ``meeting`` with tracking and pose."""
+    folder = tmp_path_factory.mktemp("calm")
+    layout = folder / "layout.yaml"
+    layout.write_text(TRACKING_LAYOUT + POSE_WORKER)
+    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout,
+                  "--out", folder / "out", timeout=120)
+    assert r.returncode == 0, r.stderr
+    return layout, folder / "out"
+
+
+def assert_results_as_undisturbed(out, calm):
+    """tracks.jsonl and poses.jsonl of ``out`` are those of ``calm``, byte for byte."""
+    for name in ("tracks.jsonl", "poses.jsonl"):
+        want, got = ([json.loads(line) for line in open(d / name)] for d in (calm, out))
+        assert got == want, (name, "frames that differ", [a["frame"] for a, b in zip(want, got) if a != b][:10],
+                             "missing", sorted({a["frame"] for a in want} - {b["frame"] for b in got}))
+        assert (out / name).read_bytes() == (calm / name).read_bytes(), name
+
+
+def test_killed_tracking_and_pose_workers_carry_on_as_if_never_stopped(meeting, calm_meeting, tmp_path):
     """kill -9 of the tracking worker, then of the pose worker, mid-run: each restarted
     worker takes over its earlier incarnation's snapshot (tracker; pose filters) and
     catches up on the frames put out since (sent again by the stages before it), so
     tracks.jsonl and poses.jsonl are those of an undisturbed run, byte for byte (every
     identity kept, every pose the same)."""
-    layout = tmp_path / "layout.yaml"
-    layout.write_text(TRACKING_LAYOUT + POSE_WORKER)
-    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout,
-                  "--out", tmp_path / "calm", timeout=120)
-    assert r.returncode == 0, r.stderr
+    layout, calm = calm_meeting
     out = tmp_path / "killed"
     proc = start_smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout, "--out", out)
     try:
@@ -648,11 +665,7 @@ def test_killed_tracking_and_pose_workers_carry_on_as_if_never_stopped(meeting, 
     s = stats_of(out)
     assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1 and s["stages"]["pose"]["restarts"] == 1
     assert "tracker restored at frame" in err and "pose estimator restored at frame" in err, err[-2000:]
-    for name in ("tracks.jsonl", "poses.jsonl"):
-        calm, got = ([json.loads(line) for line in open(d / name)] for d in (tmp_path / "calm", out))
-        assert got == calm, (name, "frames that differ", [a["frame"] for a, b in zip(calm, got) if a != b][:10],
-                             "missing", sorted({a["frame"] for a in calm} - {b["frame"] for b in got}))
-        assert (out / name).read_bytes() == (tmp_path / "calm" / name).read_bytes(), name
+    assert_results_as_undisturbed(out, calm)
     tracks = [json.loads(line) for line in open(out / "tracks.jsonl")]
     assert len(tracks) == 150 and {t["id"] for f in tracks[75:] for t in f["tracks"]} >= {1, 2}
 
@@ -685,17 +698,13 @@ def test_a_damaged_tracker_snapshot_is_one_log_line_and_a_fresh_start(meeting, t
     assert [json.loads(line)["frame"] for line in open(out / "tracks.jsonl")] == list(range(100))
 
 
-def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, tmp_path, monkeypatch):
+def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, calm_meeting, tmp_path, monkeypatch):
     """A worker killed between ``put()`` and zenoh sending the message: its journal says
     the frame is out, the consumers never got it. The restarted worker puts its newest
     frame out again: the tracking worker works frame 57 anew (its snapshot is of 56), the
     pose worker sends frame 84's poses kept with its snapshot (of 84 itself). Nothing is
     missing; the files are those of an undisturbed run."""
-    layout = tmp_path / "layout.yaml"
-    layout.write_text(TRACKING_LAYOUT + POSE_WORKER)
-    r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout,
-                  "--out", tmp_path / "calm", timeout=120)
-    assert r.returncode == 0, r.stderr
+    layout, calm = calm_meeting
     out = tmp_path / "lost"
     monkeypatch.setenv("SMARTROOM_LOSE_OUTPUT", "tracking:57,pose:84")
     r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout, "--out", out,
@@ -709,7 +718,4 @@ def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, tmp_path, 
     for name in ("tracking", "pose"):
         st = s["stages"][name]
         assert (st["frames_in"], st["frames_out"], st["frames_missing"], st["frames_dropped"]) == (150, 150, 0, 0), st
-    for name in ("tracks.jsonl", "poses.jsonl"):
-        calm, got = ([json.loads(line) for line in open(d / name)] for d in (tmp_path / "calm", out))
-        assert [f["frame"] for f in got] == list(range(150)), name
-        assert (out / name).read_bytes() == (tmp_path / "calm" / name).read_bytes(), name
+    assert_results_as_undisturbed(out, calm)
