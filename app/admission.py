@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM"]
+__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S"]
 
 WINDOW = 1000          # frames either side of the newest accepted one (40 s at 25 fps)
 EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch starting anew

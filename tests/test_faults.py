@@ -701,21 +701,23 @@ def test_a_damaged_tracker_snapshot_is_one_log_line_and_a_fresh_start(meeting, t
 def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, calm_meeting, tmp_path, monkeypatch):
     """A worker killed between ``put()`` and zenoh sending the message: its journal says
     the frame is out, the consumers never got it. The restarted worker puts its newest
-    frame out again: the tracking worker works frame 57 anew (its snapshot is of 56), the
-    pose worker sends frame 84's poses kept with its snapshot (of 84 itself). Nothing is
-    missing; the files are those of an undisturbed run."""
+    frame out again: the grabber sends frame 40 again in its earlier epoch, the tracking
+    worker works frame 57 anew (its snapshot is of 56), the pose worker sends frame 84's
+    poses kept with its snapshot (of 84 itself). Nothing is missing; the files are those
+    of an undisturbed run."""
     layout, calm = calm_meeting
     out = tmp_path / "lost"
-    monkeypatch.setenv("SMARTROOM_LOSE_OUTPUT", "tracking:57,pose:84")
+    monkeypatch.setenv("SMARTROOM_LOSE_OUTPUT", "grabber:40,tracking:57,pose:84")
     r = smartroom("run", "--recording", meeting, "--headless", "--no-pace", "--layout", layout, "--out", out,
                   timeout=180)
     err = r.stderr
-    print("\n".join(line for line in err.splitlines() if "[tracking]" in line or "[pose]" in line))
+    print("\n".join(line for line in err.splitlines() if "WARNING" in line))
     assert r.returncode == 0, err
     s = stats_of(out)
-    assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1 and s["stages"]["pose"]["restarts"] == 1
-    assert "put out frame 57 again" in err and "put out frame 84 again from the state arrays" in err, err[-3000:]
-    for name in ("tracking", "pose"):
+    assert s["complete"] is True and all(s["stages"][n]["restarts"] == 1 for n in ("grabber", "tracking", "pose"))
+    assert ("[grabber] WARNING put out frame 40 again" in err and "put out frame 57 again" in err
+            and "put out frame 84 again from the state arrays" in err), err[-3000:]
+    for name in ("grabber", "segmentation", "reconstruction", "tracking", "pose", "recorder"):
         st = s["stages"][name]
         assert (st["frames_in"], st["frames_out"], st["frames_missing"], st["frames_dropped"]) == (150, 150, 0, 0), st
     assert_results_as_undisturbed(out, calm)

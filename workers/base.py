@@ -579,6 +579,8 @@ class Worker(Restarts):
             t0 = time.perf_counter()
             self._idle = 0.0
             more = self.produce()
+            if self._killed_after_handle:   # FAILPOINT_ENV
+                os.kill(os.getpid(), signal.SIGKILL)
             self.ledger.processed(time.perf_counter() - t0 - self._idle)
             self._periodic()
             self.tick()

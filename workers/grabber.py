@@ -17,6 +17,7 @@ from __future__ import annotations
 import threading
 import time
 
+from app.admission import EPOCH_QUIET_S
 from app.errors import InputError
 from app.messages import Frame
 from app.recording import Recording
@@ -27,6 +28,7 @@ from workers.restarts import REPLAY_DELAY_S
 
 MISSING_WAIT_S = 60.0   # offline: how long a crashed stage is waited for before frames go on without it
 RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # offline: new frames wait this long after a worker is back from a crash
+AGAIN_QUIET_S = 4 * EPOCH_QUIET_S    # offline, restarted: the new epoch waits this long after the last frame sent again
 
 
 class Grabber(Worker):
@@ -115,12 +117,36 @@ class Grabber(Worker):
     # -- across restarts -------------------------------------------------------------
     _resume: int | None = None
 
+    _out_epoch: int | None = None   # the epoch of the newest frame sent
+    _sent_again = False
+
+    def extra_state(self) -> dict:
+        return {"out_epoch": self._out_epoch}
+
     def restore_state(self, state: dict) -> None:
         """A restarted grabber carries on after the last frame it sent (its ledger, with
         the journal, knows it exactly): a recording from there, live cameras with the
-        next frame number, so results never hold one frame number twice."""
+        next frame number, so results never hold one frame number twice. On a recording
+        it first sends that last frame again in its own epoch (a grabber killed right after
+        handing it to the bus may not have sent it; the stages that had it skip it)."""
         if self.ledger.newest_out >= 0:
             self._resume = self.ledger.newest_out + 1
+            epoch = state.get("out_epoch")
+            if isinstance(epoch, int) and not isinstance(epoch, bool):
+                self._out_epoch = epoch
+
+    def _send_again(self) -> None:
+        """The last frame the earlier incarnation sent, in that incarnation's epoch."""
+        index = self.ledger.newest_out
+        again = RecordingSource(self.layout.run.recording, self.cameras(), start=index, frames=1,
+                                skip_bad=self.params["skip_bad_frames"],
+                                transform=self._reduce if self.scale > 1 else None)
+        for i, images in again.frames():
+            cameras = sorted(images)
+            for cam, image in images.items():
+                self.publish(self.keys.frame(cam), Frame(frame=i, stamp=time.time(), t=i / again.fps, camera=cam,
+                                                         cameras=cameras, image=image, epoch=self._out_epoch,
+                                                         scale=self.scale), counts=False)
 
     @property
     def produced(self) -> int:
@@ -134,6 +160,10 @@ class Grabber(Worker):
                              self.params["ready_timeout"])
 
     def produce(self) -> bool:
+        if self.incarnation > 0 and self._out_epoch is not None and self.lossless and not self._sent_again:
+            self._sent_again = True
+            self._send_again()
+            self.sleep(AGAIN_QUIET_S)   # the stages follow the new epoch once the old one is quiet
         if self.source is None:
             return False
         if self._frames is None:
@@ -160,6 +190,7 @@ class Grabber(Worker):
             self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
                                                      image=image, epoch=self.epoch, scale=self.scale), counts=False)
         self.ledger.emitted(index, stamp)   # sent once every camera's image is: a restart sends it again
+        self._out_epoch = self.epoch
         return True
 
     def _filters(self) -> list[str]:
