@@ -44,7 +44,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import Poses, Tracks, Voxels
-from app.pose.selection import pose_subset
+from app.pose.selection import pose_frame
 from workers.base import Worker
 from workers.restarts import REPLAY_FRAMES
 
@@ -111,17 +111,7 @@ class Pose(Worker):
         from app.pose.estimator import PoseSettings
         p = self.params
         try:
-            self.settings = PoseSettings(method=p["method"], density=float(p["density"]), likelihood=p["likelihood"],
-                                         particles=int(p["particles"]), layers=int(p["layers"]), gamma=int(p["gamma"]),
-                                         gamma_budget=int(p["gamma_budget"]), gamma_min=int(p["gamma_min"]),
-                                         importance_fraction=float(p["importance_fraction"]),
-                                         coverage=float(p["coverage"]), coverage_partial=bool(p["coverage_partial"]),
-                                         floor=float(p["floor"]), heading=float(p["heading"]), feet=float(p["feet"]),
-                                         ik=str(p["ik"]),
-                                         reach=float(p["reach"]), surface=str(p["surface"]), stature=str(p["stature"]),
-                                         stance=float(p["stance"]), ground=float(p["ground"]),
-                                         anchor=float(p["anchor"]), anchor_free=float(p["anchor_free"]),
-                                         seed=int(p["seed"]))
+            self.settings = PoseSettings.from_params(p)
             self.settings.validate()
         except (TypeError, ValueError) as exc:
             raise InputError(f"pose: {exc}") from None
@@ -265,22 +255,14 @@ class Pose(Worker):
     def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
-        est = self._estimator(vox)
-        centres = vox.centres()
-        surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
-        p = self.params
-        keep = pose_subset(vox.misses, centres, positions, mode=p["voxels"], cameras=len(vox.cameras),
-                           low=float(p["tolerant_low"]), near=float(p["tolerant_near"]),
-                           views=int(p["tolerant_views"]))
-        if keep is not None:
-            centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
-            self.kept.append(float(keep.mean()))
         # every track takes part in the voxel ownership; only this worker's share is posed
         only = None
         if self.share is not None:
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
-        result = est.update(centres, surface, ids, positions, only=only)
+        result, kept = pose_frame(self._estimator(vox), vox, ids, positions, self.params, only=only)
+        if kept is not None:
+            self.kept.append(kept)
         order = sorted(result)
         self.people_counts.append(len(order))
         joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)

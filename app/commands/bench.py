@@ -16,6 +16,8 @@
   against MOG2 alone; ``--hull`` adds the hull carved from each (k = 0 and 1).
 - ``smartroom bench pose``: ms per frame of APF 600x6, SHBM-APF and DDM-APF at model
   densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
+  ``--replay RUN --recording DIR --pose-seeds N``: the pose stage again over a run's own
+  voxels for N filter seeds (the seed's spread; paired comparisons with ``--pose-set``).
 """
 from __future__ import annotations
 
@@ -61,6 +63,10 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
     p.add_argument("--pose-surface", action="store_true",
                    help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
+    p.add_argument("--replay", metavar="RUN",
+                   help="pose: the pose stage again over the voxels of RUN (smartroom run ... --set "
+                        "recorder.voxels=true) with its pose parameters and --pose-set overrides, once per seed of "
+                        "--pose-seeds, scored against --recording's ground truth")
 
 
 def _bus(args, out: Path) -> dict:
@@ -146,10 +152,32 @@ def _simulate(args, out: Path) -> dict:
     return bench_render(args.scene, frames=args.frames or 50, seconds=args.seconds, zenithal=args.zenithal)
 
 
+def _pose_replay(args) -> dict:
+    from app.benchmarks.pose_replay import HEADER, format_replay, replay_poses
+    from app.errors import InputError
+
+    if not args.recording:
+        raise InputError("--replay needs --recording DIR (the recording the run was made on: its ground truth)")
+    overrides = {}
+    for item in filter(None, args.pose_set.split(",")):
+        key, _, value = (v.strip() for v in item.partition("="))
+        if not key or not value:
+            raise InputError(f"--pose-set {item}: expected KEY=VALUE (a pose worker parameter)")
+        import yaml
+        overrides[key] = yaml.safe_load(value)
+    print(f"smartroom bench pose --replay {args.replay}: {args.pose_seeds} seed(s), one core", file=sys.stderr)
+    print(HEADER)
+    result = replay_poses(args.replay, args.recording, seeds=tuple(range(args.pose_seeds)), overrides=overrides)
+    print(format_replay(result))
+    return result
+
+
 def _pose(args, out: Path) -> dict:
     from app.benchmarks import pose
     from app.errors import InputError
 
+    if args.replay:
+        return _pose_replay(args)
     try:
         densities = tuple(float(v) for v in args.densities.split(","))
         voxel = float(args.voxel_sizes.split(",")[0]) / 100 if args.voxel_sizes != "2,3,4,5" else 0.02

@@ -23,7 +23,7 @@ switching, §7.4) and ``shbm+ddm`` (both, the thesis's future work).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -73,6 +73,18 @@ class PoseSettings:
     seed: int = 0
     room_lo: tuple = (0.0, 0.0, 0.0)
     room_hi: tuple = (5.0, 4.0, 2.5)
+
+    @classmethod
+    def from_params(cls, params: dict) -> "PoseSettings":
+        """The settings a pose worker's parameters give (each cast to its field's type; the
+        worker's other keys, voxel subset, share and snapshots, are not settings), as the
+        worker and ``smartroom bench pose --replay`` build them."""
+        kw = {}
+        for f in fields(cls):
+            if f.name in params and f.name not in ("voxel_size", "room_lo", "room_hi"):
+                kind = type(f.default)
+                kw[f.name] = kind(params[f.name]) if kind in (int, float, bool, str) else params[f.name]
+        return cls(**kw)
 
     def validate(self) -> None:
         if self.method not in METHODS:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SUBSETS", "pose_subset"]
+__all__ = ["SUBSETS", "pose_subset", "pose_frame"]
 
 SUBSETS = ("consensus", "tolerant", "all")
 
@@ -56,3 +56,20 @@ def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.nd
     keep = keep.copy()
     keep[where] = True
     return keep
+
+
+def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None):
+    """One frame through a :class:`~app.pose.estimator.PoseEstimator` as the pose worker
+    poses it: the voxel subset of ``params`` (the worker's ``voxels``, ``tolerant_*``), its
+    surface recomputed where a subset is taken; ``(result {track: (joints, active)}, share
+    of the frame's voxels kept or None)``. ``vox``: a :class:`~app.messages.Voxels`."""
+    centres = vox.centres()
+    surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
+    keep = pose_subset(vox.misses, centres, positions, mode=params["voxels"], cameras=len(vox.cameras),
+                       low=float(params["tolerant_low"]), near=float(params["tolerant_near"]),
+                       views=int(params["tolerant_views"]))
+    kept = None
+    if keep is not None:
+        centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
+        kept = float(keep.mean())
+    return estimator.update(centres, surface, ids, positions, only=only), kept
