@@ -42,6 +42,9 @@ def test_bad_replays_are_one_line_errors(run_with_voxels, tmp_path):
     rec, out = run_with_voxels
     r = smartroom("bench", "pose", "--replay", out, "--recording", rec, "--pose-set", "nonsense=1",
                   "--out", tmp_path / "b", timeout=120)
-    assert r.returncode != 0 and "nonsense: not a pose worker parameter" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode != 0 and "unknown parameter 'nonsense'" in r.stderr and "Traceback" not in r.stderr
+    r = smartroom("bench", "pose", "--replay", out, "--recording", rec, "--pose-set", "voxels=some",
+                  "--out", tmp_path / "b2", timeout=120)
+    assert r.returncode != 0 and "voxels = 'some' is not one of" in r.stderr and "Traceback" not in r.stderr
     r = smartroom("bench", "pose", "--replay", tmp_path, "--recording", rec, "--out", tmp_path / "c", timeout=120)
     assert r.returncode != 0 and "layout.yaml: file not found" in r.stderr and "Traceback" not in r.stderr

@@ -24,16 +24,20 @@ from app.errors import InputError
 __all__ = ["replay_poses", "format_replay"]
 
 
-def _pose_params(results: Path) -> dict:
-    from app.config import load_layout
+def _pose_params(results: Path, overrides: dict) -> dict:
+    """The run's pose worker parameters with ``overrides``, validated as a layout's."""
+    from app.config import apply_overrides, load_layout
 
     path = results / "layout.yaml"
     if not path.is_file():
         raise InputError(f"{path}: file not found (the results of smartroom run)")
-    specs = [w for w in load_layout(path).workers if w.kind == "pose"]
+    layout = load_layout(path)
+    specs = [w for w in layout.workers if w.kind == "pose"]
     if len(specs) != 1:
         raise InputError(f"{path}: expected one pose worker, found {len(specs)}")
-    return dict(specs[0].params)
+    if overrides:
+        layout = apply_overrides(layout, {specs[0].name: overrides}, "--pose-set")
+    return dict(layout.worker(specs[0].name).params)
 
 
 def _tracks(msgs) -> dict:
@@ -73,11 +77,7 @@ def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, 
     from app.results import iter_voxels
 
     results, recording = Path(results), Path(recording)
-    params = _pose_params(results)
-    unknown = sorted(set(overrides or {}) - set(params))
-    if unknown:
-        raise InputError(f"--pose-set {unknown[0]}: not a pose worker parameter (one of {', '.join(sorted(params))})")
-    params.update(overrides or {})
+    params = _pose_params(results, overrides or {})
     path = results / "voxels.bin"
     if not path.is_file():
         raise InputError(f"{path}: file not found (run with --set recorder.voxels=true to keep the voxels)")

@@ -153,6 +153,8 @@ def _simulate(args, out: Path) -> dict:
 
 
 def _pose_replay(args) -> dict:
+    import yaml
+
     from app.benchmarks.pose_replay import HEADER, format_replay, replay_poses
     from app.errors import InputError
 
@@ -163,8 +165,7 @@ def _pose_replay(args) -> dict:
         key, _, value = (v.strip() for v in item.partition("="))
         if not key or not value:
             raise InputError(f"--pose-set {item}: expected KEY=VALUE (a pose worker parameter)")
-        import yaml
-        overrides[key] = yaml.safe_load(value)
+        overrides[key] = yaml.safe_load(value)   # typed as in a layout: 0.5, true, tolerant
     print(f"smartroom bench pose --replay {args.replay}: {args.pose_seeds} seed(s), one core", file=sys.stderr)
     print(HEADER)
     result = replay_poses(args.replay, args.recording, seeds=tuple(range(args.pose_seeds)), overrides=overrides)
