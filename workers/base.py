@@ -602,9 +602,11 @@ class Worker(Restarts):
             self._save_state()
             self._subs.append(self.session.liveliness().declare_subscriber(
                 self.keys.alive(), self._on_liveliness, history=True))
-            self.setup()
+            # subscribed before the set-up: what arrives while the stage still loads (tables,
+            # kernels compiled on a cold cache) waits in its inbox instead of going nowhere
             for key in self.subscriptions():
                 self._subs.append(self.session.declare_subscriber(key, self._on_sample))
+            self.setup()
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             if "stats" in self.CONSUMES:

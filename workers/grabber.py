@@ -38,7 +38,8 @@ class Grabber(Worker):
     DEFAULTS = {
         "cameras": "all",        # cameras this grabber reads (a list, or all)
         "start": 0,              # first frame of a recording
-        "ready_timeout": 60.0,   # seconds to wait for the other workers before starting anyway
+        "ready_timeout": 60.0,   # live: seconds to wait for the other workers before starting anyway (a recording
+                                 # waits for all of them, saying so every this many seconds)
         "window": 2,             # offline: frames in flight beyond the slowest stage's last one
         "open_timeout": 10.0,    # live: seconds for a camera to deliver its first image
         "lost_timeout": 30.0,    # live: seconds with no camera delivering before the stream ends
@@ -154,10 +155,17 @@ class Grabber(Worker):
 
     # -- frames ------------------------------------------------------------------------
     def _wait_until_ready(self) -> None:
-        missing = self.wait_for_others(self.params["ready_timeout"])
+        """Live: until every other worker is on the bus, at most ``ready_timeout``. On a
+        recording nothing may be sent past a stage (the results would depend on how fast
+        the machine loads it): until every worker is on the bus, said every ``ready_timeout``."""
+        timeout = self.params["ready_timeout"]
+        missing = self.wait_for_others(timeout)
+        while missing and self.lossless and not self.stopping:
+            self.log.warning("frame %d waits for %s to be on the bus (%s)", self.source.start,
+                             ", ".join(sorted(missing)), "still loading, or not started on its host")
+            missing = self.wait_for_others(max(timeout, 10.0))
         if missing:
-            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)),
-                             self.params["ready_timeout"])
+            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)), timeout)
 
     def produce(self) -> bool:
         if self.incarnation > 0 and self._out_epoch is not None and self.lossless and not self._sent_again:
