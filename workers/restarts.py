@@ -285,16 +285,16 @@ class Restarts:
         keys = [k for k in arrays if k.startswith("worker_output")]
         entries = {k: arrays.pop(k) for k in keys}
         try:
-            mine = read_json_entry(arrays, "worker")
+            stamp = read_json_entry(arrays, "worker")
             names = read_json_entry(entries, "worker_outputs")
-            if int(mine["frame"]) != self._redo or not isinstance(names, list):
+            if int(stamp["frame"]) != self._redo or not isinstance(names, list):
                 return []
-            self._redo_epoch = int(mine["epoch"])
+            self._redo_epoch = int(stamp["epoch"])
             outputs = [(str(names[i]), entries[f"worker_output{i}"].tobytes()) for i in range(len(names))]
         except (KeyError, ValueError, TypeError, IndexError, AttributeError):
             return []
-        mine = {self.keys.stage(stage) for stage in self.PRODUCES if stage not in self.PER_CAMERA}
-        return [(k, p) for k, p in outputs if k in mine]
+        produced = {self.keys.stage(stage) for stage in self.PRODUCES if stage not in self.PER_CAMERA}
+        return [(k, p) for k, p in outputs if k in produced]
 
     def _journal(self, kind: str, frame: int) -> None:
         if self._journal_fd is not None:

@@ -117,8 +117,8 @@ class Tracking(Worker):
 
     def _update(self, msg: Blobs):
         """The tracker takes in one frame (after a gap since a restored snapshot, it first
-        looks for its people farther away)."""
-        self._take_over(msg)
+        looks for its people farther away); the earlier incarnation's tracker is taken
+        over before (:meth:`handle`, :meth:`catch_up`)."""
         scene = self._scene(msg)
         if self.resumed is not None:
             frame, t = self.resumed

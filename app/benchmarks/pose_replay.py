@@ -51,20 +51,13 @@ def _tracks(msgs) -> dict:
 
 
 def _truth(recording: Path) -> dict:
+    from app.evaluation.pose import ground_truth_poses
     from app.files import read_jsonl
-    from app.messages import JOINTS
 
     path = recording / "groundtruth.jsonl"
     if not path.is_file():
         raise InputError(f"{path}: file not found (the replay scores against the recording's ground truth)")
-    truth = {}
-    for rec in read_jsonl(path):
-        people = rec.get("people", [])
-        truth[int(rec["frame"])] = ({int(p["id"]): np.array([p["joints"][n] for n in JOINTS], dtype=float)
-                                     for p in people},
-                                    {int(p["id"]): np.array([p.get("visible", {}).get(n, True) for n in JOINTS],
-                                                            dtype=bool) for p in people})
-    return truth
+    return ground_truth_poses(read_jsonl(path))
 
 
 def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, epsilon: float = 0.1,

@@ -232,6 +232,20 @@ def pose_breakdown(frames, epsilon: float = 0.1, match_radius: float = 0.5, wors
     }
 
 
+def ground_truth_poses(records) -> dict:
+    """``{frame: (truth {id: (15, 3) joints}, visible {id: (15,) bool})}`` of a recording's
+    ``groundtruth.jsonl`` records."""
+    out = {}
+    for rec in records:
+        truth, visible = {}, {}
+        for p in rec.get("people", []):
+            truth[int(p["id"])] = np.array([p["joints"][n] for n in JOINTS], dtype=float)
+            hid = p.get("visible", {})
+            visible[int(p["id"])] = np.array([hid.get(n, True) for n in JOINTS], dtype=bool)
+        out[int(rec["frame"])] = (truth, visible)
+    return out
+
+
 def evaluate_pose_files(recording, results, epsilon: float = 0.1, hidden: str = "all") -> dict:
     """Score ``<results>/poses.jsonl`` against ``<recording>/groundtruth.jsonl``."""
     from pathlib import Path
@@ -251,15 +265,9 @@ def evaluate_pose_files(recording, results, epsilon: float = 0.1, hidden: str = 
         except (KeyError, TypeError, ValueError):
             raise InputError(f"{pose_path}: frame {rec.get('frame')!r} has a pose without the 15 joints") from None
     frames, numbers = [], []
-    for rec in read_jsonl(gt_path):
-        f = int(rec["frame"])
+    for f, (truth, visible) in ground_truth_poses(read_jsonl(gt_path)).items():
         if f not in poses:
             continue   # a frame the pipeline dropped is absent from its files (CONTRACT §2)
-        truth, visible = {}, {}
-        for p in rec.get("people", []):
-            truth[int(p["id"])] = np.array([p["joints"][n] for n in JOINTS], dtype=float)
-            hid = p.get("visible", {})
-            visible[int(p["id"])] = np.array([hid.get(n, True) for n in JOINTS], dtype=bool)
         frames.append((truth, poses[f], visible))
         numbers.append(f)
     report = pose_report(frames, epsilon=epsilon, hidden=hidden)
