@@ -62,6 +62,9 @@ class Message:
 
     TYPE_ID: ClassVar[int] = 0
     ARRAYS: ClassVar[tuple[str, ...]] = ()
+    #: how many of the last ``ARRAYS`` were added after the type first travelled: a payload
+    #: of an older build without them decodes with them empty
+    ADDED_ARRAYS: ClassVar[int] = 0
 
     frame: int = -1
     stamp: float = 0.0
@@ -187,9 +190,10 @@ def decode(payload) -> Message:
             raise TypeError
     except (ValueError, KeyError, TypeError):
         raise MessageError(f"{cls.__name__}: meta is not valid JSON of the expected shape") from None
-    if len(descs) != n_arrays or n_arrays != len(cls.ARRAYS):
+    if len(descs) != n_arrays or not len(cls.ARRAYS) - cls.ADDED_ARRAYS <= n_arrays <= len(cls.ARRAYS):
         raise MessageError(f"{cls.__name__}: expected {len(cls.ARRAYS)} arrays, payload has {n_arrays}")
     kwargs = {"frame": frame, "stamp": stamp, "t": t}
+    kwargs.update({name: np.zeros(0, np.uint8) for name in cls.ARRAYS[n_arrays:]})
     offset = end
     for name, desc in zip(cls.ARRAYS, descs):
         try:
@@ -303,19 +307,28 @@ class Voxels(Message):
     foreground (empty when not computed): with tolerance k every voxel has misses <= k,
     and the voxels with 0 are the k = 0 hull, tighter, for consumers that want it (pose).
 
+    ``silhouettes``: the foreground masks the frame was carved from, reduced (to
+    ``silhouette_sizes`` ``[[w, h], ...]``, one per camera of ``cameras``, in that order),
+    each bit-packed along rows and the cameras concatenated (empty when not sent; the pose
+    stage's silhouette term, :mod:`app.pose.silhouette`). Added after the first builds:
+    their payloads decode with it empty.
+
     Voxel ``(i, j, k)`` has its centre at ``origin + (index + 0.5) * voxel_size``.
     """
 
     TYPE_ID: ClassVar[int] = 3
-    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "misses")
+    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "misses", "silhouettes")
+    ADDED_ARRAYS: ClassVar[int] = 1
     voxel_size: float = 0.0
     origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     dims: list = field(default_factory=lambda: [0, 0, 0])
     cameras: list = field(default_factory=list)
+    silhouette_sizes: list = field(default_factory=list)
     indices: np.ndarray = None
     colours: np.ndarray = None
     surface: np.ndarray = None
     misses: np.ndarray = None
+    silhouettes: np.ndarray = None
 
     def validate(self) -> None:
         super().validate()
@@ -323,6 +336,39 @@ class Voxels(Message):
         misses = _array(self, "misses", "|u1", (n,), allow_empty=True)
         if misses.size and int(misses.max()) > max(len(self.cameras), 1):
             raise MessageError("Voxels: misses exceed the number of cameras")
+        sil = _array(self, "silhouettes", "|u1", (None,), allow_empty=True)
+        sizes = self.silhouette_sizes
+        if not sil.size:
+            if sizes:
+                raise MessageError("Voxels: silhouette_sizes without silhouettes")
+            return
+        if (not isinstance(sizes, list) or len(sizes) != len(self.cameras)
+                or not all(isinstance(wh, list) and len(wh) == 2
+                           and all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= _MAX_SIDE for v in wh)
+                           for wh in sizes)):
+            raise MessageError("Voxels: silhouette_sizes is not one [width, height] per camera")
+        need = sum(h * ((w + 7) // 8) for w, h in sizes)
+        if sil.shape != (need,):
+            raise MessageError(f"Voxels: silhouettes hold {sil.size} bytes, their sizes need {need}")
+
+    def with_silhouettes(self, masks: list) -> "Voxels":
+        """Attach the boolean masks (one per camera of ``cameras``, in order) as silhouettes."""
+        self.silhouette_sizes = [[int(m.shape[1]), int(m.shape[0])] for m in masks]
+        self.silhouettes = (np.concatenate([np.packbits(np.asarray(m, bool), axis=1).ravel() for m in masks])
+                            if masks else np.zeros(0, np.uint8))
+        return self
+
+    def silhouette_masks(self) -> list:
+        """The silhouettes as boolean (h, w) arrays, one per camera of ``cameras``; [] when none."""
+        if self.silhouettes is None or not self.silhouettes.size:
+            return []
+        out, at = [], 0
+        for w, h in self.silhouette_sizes:
+            row = (w + 7) // 8
+            bits = np.asarray(self.silhouettes[at:at + h * row]).reshape(h, row)
+            out.append(np.unpackbits(bits, axis=1, count=w).view(bool))
+            at += h * row
+        return out
 
     def centres(self) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3)."""

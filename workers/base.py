@@ -200,6 +200,18 @@ class Worker(Restarts):
         cams = self.params.get("cameras")
         return None if cams in (None, "all") else list(cams)
 
+    def run_calibration(self):
+        """The run's calibration: the recording's ``calibration.yaml``, else the layout's
+        calibration file (live cameras); None with neither."""
+        from calibration import load_calibration
+
+        run = self.layout.run
+        if run.recording:
+            return load_calibration(Path(run.recording) / "calibration.yaml")
+        if run.calibration:
+            return load_calibration(run.calibration)
+        return None
+
     def subscriptions(self) -> list[str]:
         """Key expressions to subscribe to (default: the consumed stages)."""
         keys = []

@@ -93,6 +93,12 @@ class Pose(Worker):
         "tolerant_low": 0.2,        # m: tolerant keeps one-miss voxels below this height
         "tolerant_near": 0.6,       # m: ... within this distance (floor plane) of a track
         "tolerant_views": 3,        # ... where at least this many cameras see them (frames of >= views + 1 cameras)
+        "silhouette": 0.0005,       # sigma^2 of the silhouette term (the masks the voxels carry, app.pose.silhouette;
+                                    # walk1 2 cm MMTA 0.877 -> 0.92, meeting3 0.84 -> 0.86, docs/benchmarks.md);
+                                    # 0 = off (the thesis)
+        "silhouette_spacing": 0.08,  # m: the model's points for the term on a lattice this fine (about a silhouette
+                                     # pixel); 0 = the voxel scores' points (density x voxel size: 2-4x the cost)
+        "silhouette_reach": 0.6,    # m: a silhouette pixel is a person's when its ray passes this near only that track
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
@@ -105,6 +111,7 @@ class Pose(Worker):
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
+              "silhouette": (0.0, 10.0), "silhouette_spacing": (0.0, 0.5), "silhouette_reach": (0.05, 3.0),
               "snapshot_frames": (1, 1000)}
 
     def setup(self) -> None:
@@ -120,6 +127,10 @@ class Pose(Worker):
         if share is not None and not valid:
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
         self.share = share
+        # the silhouette term projects the model into the cameras the voxels were carved from
+        calib = self.run_calibration() if self.settings.silhouette > 0 else None
+        self.cameras_by_name = {c.name: c for c in calib.cameras} if calib is not None else None
+        self.silhouette_frames = [0, 0]   # frames posed with silhouettes, frames posed
         self.estimator = None
         self.grid = None
         self.voxels: dict[int, Voxels] = {}
@@ -260,7 +271,9 @@ class Pose(Worker):
         if self.share is not None:
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
-        result, kept = pose_frame(self._estimator(vox), vox, ids, positions, self.params, only=only)
+        result, kept = pose_frame(self._estimator(vox), vox, ids, positions, self.params, only=only,
+                                  cameras=self.cameras_by_name)
+        self._count_silhouettes(vox)
         if kept is not None:
             self.kept.append(kept)
         order = sorted(result)
@@ -273,8 +286,20 @@ class Pose(Worker):
         self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t, worker=self.name,
                                               tracks=np.array(order, dtype=np.int64), joints=joints, active=active))
 
+    def _count_silhouettes(self, vox: Voxels) -> None:
+        if not self.settings.silhouette > 0:
+            return
+        used = self.cameras_by_name is not None and vox.silhouettes is not None and vox.silhouettes.size > 0
+        self.silhouette_frames[1] += 1
+        self.silhouette_frames[0] += int(used)
+        if not used and self.silhouette_frames[1] - self.silhouette_frames[0] == 1:
+            why = ("no calibration" if self.cameras_by_name is None else
+                   "the voxels carry no silhouettes (reconstruction.silhouettes = 0, or an older reconstruction)")
+            self.log.warning("frame %d: the silhouette term is off: %s", vox.frame, why)
+
     def extra_figures(self) -> dict:
         c = getattr(self, "people_counts", [])
         kept = getattr(self, "kept", [])[-50:]
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
-                "consensus_share": round(float(np.mean(kept)), 3) if kept else None}
+                "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
+                "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0]))}

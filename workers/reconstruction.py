@@ -25,7 +25,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import Mask, Voxels
-from app.segmentation import working_size
+from app.segmentation import reduce_mask, working_size
 from workers.base import Worker
 
 MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
@@ -65,13 +65,15 @@ class Reconstruction(Worker):
                                      # covers, in every camera, under this; app/reconstruction/ghosts.py); 0 = keep all
         "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
                                      # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
+        "silhouettes": 80,           # the frame's masks go with the voxels, halved until at most this wide (the
+                                     # pose stage's silhouette term, app.pose.silhouette; 600 bytes a camera); 0 = not
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
               "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
               "occlusion_evidence": (0, 100000), "occlusion_ratio": (0.0, 1.0), "occlusion_cell": (0.01, 1.0),
               "ghost_share": (0.0, 1.0),
-              "footprint": (0.0, 1.0), "min_component": (0, 1_000_000)}
+              "footprint": (0.0, 1.0), "min_component": (0, 1_000_000), "silhouettes": (0, 4096)}
     CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none"), "occlusion": ("none", "learnt", "cells")}
 
     def setup(self) -> None:
@@ -262,11 +264,15 @@ class Reconstruction(Worker):
         self.occupied.append(len(indices))
         any_mask = next(iter(masks.values()))
         grid = self.reconstructor.grid
-        self.publish(self.keys.voxels(), Voxels(
-            frame=frame, stamp=any_mask.stamp, t=any_mask.t, voxel_size=float(grid.voxel_size),
-            origin=[float(v) for v in grid.origin], dims=[int(v) for v in grid.dims],
-            cameras=sorted(mask_arrays), indices=indices, colours=colours, surface=surface,
-            misses=self.reconstructor.misses))
+        cameras = sorted(mask_arrays)
+        vox = Voxels(frame=frame, stamp=any_mask.stamp, t=any_mask.t, voxel_size=float(grid.voxel_size),
+                     origin=[float(v) for v in grid.origin], dims=[int(v) for v in grid.dims],
+                     cameras=cameras, indices=indices, colours=colours, surface=surface,
+                     misses=self.reconstructor.misses)
+        width = int(self.params["silhouettes"])
+        if width > 0:
+            vox.with_silhouettes([reduce_mask(mask_arrays[c], width) for c in cameras])
+        self.publish(self.keys.voxels(), vox)
 
     def extra_figures(self) -> dict:
         recent = {k: v[-50:] for k, v in getattr(self, "timings", {}).items()}

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 from app.errors import InputError
 from app.messages import Poses, Stats, Tracks, Voxels
@@ -90,15 +89,10 @@ class Viewer(Worker):
         self.log.info("serving the view at %s", self.server.url)
 
     def _calibration(self):
-        from calibration import load_calibration
-
-        run = self.layout.run
-        if run.recording:
-            return load_calibration(Path(run.recording) / "calibration.yaml")
-        if run.calibration:
-            return load_calibration(run.calibration)
-        self.log.info("no calibration: the room is drawn from the first voxel grid")
-        return None
+        calib = self.run_calibration()
+        if calib is None:
+            self.log.info("no calibration: the room is drawn from the first voxel grid")
+        return calib
 
     # -- messages -------------------------------------------------------------------------
     def handle(self, key: str, msg) -> None:

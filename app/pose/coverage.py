@@ -219,6 +219,9 @@ class CoverageScorer(Scorer):
         self.stance = 0.0          # m: deviation of the stance prior while standing (set with both_feet); 0 = off
         self.ground = 0.0          # m: deviation of the ground prior (no ankle below its standing height); 0 = off
         self.anchor = None         # (track x, y, free radius m, deviation m) or None: the root near its track
+        self.silhouette = None     # (PersonSilhouettes, sigma^2, Lut) or None: app.pose.silhouette's term
+        self._sil_stamp = None
+        self._sil_token = 1
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
         act = np.ones(len(PARTS), dtype=bool) if active is None else np.asarray(active, dtype=bool)
@@ -228,6 +231,8 @@ class CoverageScorer(Scorer):
             delta = self.flesh.spacing / self.obs.voxel_size
             miss = 1.0 - coverage(counts, act, self.obs.count, delta)
             lw = lw - 0.5 * miss ** 2 / self.sigma2
+        if self.silhouette is not None and np.all(act | ~self.expected):
+            lw = lw - self._silhouette_penalty(states, act)
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
             floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
                                           self.stance if self.both_feet > 0 else 0.0, self.ground)
@@ -241,3 +246,14 @@ class CoverageScorer(Scorer):
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))
             lw = lw - 0.5 * (d / sigma) ** 2
         return lw
+
+    def _silhouette_penalty(self, states, act) -> np.ndarray:
+        """``(1 - rho_Sil)^2 / (2 sigma^2)`` of :mod:`app.pose.silhouette` (whole model only)."""
+        from app.pose.silhouette import silhouette_coverage
+        person, sigma2, lut = self.silhouette
+        if self._sil_stamp is None or self._sil_stamp.shape != person.grids.shape:
+            self._sil_stamp = np.zeros(person.grids.shape, np.int64)
+        rho = silhouette_coverage(states, self.flesh.height, lut if lut is not None else self.lut, act, person, self._sil_stamp,
+                                  self._sil_token)
+        self._sil_token += len(states)
+        return 0.5 * (1.0 - rho) ** 2 / sigma2

@@ -31,6 +31,7 @@ from app.messages import JOINTS
 from app.pose.detections import Importance, detect
 from app.pose.filters import APF, SHBMAPF, LimbSwitch
 from app.pose.flesh import build_flesh
+from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer
 from app.pose.model import BodyModel, neutral_state
 from app.pose.observation import observe
@@ -69,6 +70,9 @@ class PoseSettings:
     anchor: float = 0.0             # m: the root within anchor_free of its track, beyond a Gaussian of this deviation; 0 = off
     anchor_free: float = 0.25       # m
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
+    silhouette: float = 0.0         # sigma^2 of the silhouette term (app.pose.silhouette); 0 = off (the thesis)
+    silhouette_spacing: float = 0.0  # m: the model's points for it on a lattice this fine; 0 = the voxel scores' points
+    silhouette_reach: float = 0.6   # m: a silhouette pixel is a track's when its ray passes this near the track only
     height_frames: int = 5
     seed: int = 0
     room_lo: tuple = (0.0, 0.0, 0.0)
@@ -103,6 +107,9 @@ class PoseSettings:
             raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
+        if not (self.silhouette >= 0 and self.silhouette_spacing >= 0 and self.silhouette_reach > 0):
+            raise ValueError("silhouette and silhouette_spacing must be >= 0 (0: off, the model's points), "
+                             "silhouette_reach > 0")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
             raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
 
@@ -179,6 +186,8 @@ class PersonPose:
         self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
+        self.silhouette_lut = (kernel_lut(_flesh(height, s.silhouette_spacing, 1.0))
+                               if s.silhouette > 0 and s.silhouette_spacing > 0 else None)
         self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):
@@ -187,10 +196,13 @@ class PersonPose:
             self.filter = APF(particles=s.particles, layers=s.layers, alpha=s.alpha, **kw)
         self.switch = LimbSwitch(rng=self.rng, criterion=s.limb_criterion) if s.method.endswith("ddm") else None
 
-    def update(self, centres: np.ndarray, surface, position: np.ndarray, gamma: int | None = None):
+    def update(self, centres: np.ndarray, surface, position: np.ndarray, gamma: int | None = None,
+               silhouettes=None):
         """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
         body is known; ``gamma``: SHBM-APF's particles per new DoF this frame (the
-        estimator's budget, :meth:`PoseSettings.shbm_gamma`), None for the settings'."""
+        estimator's budget, :meth:`PoseSettings.shbm_gamma`), None for the settings';
+        ``silhouettes``: the person's :class:`~app.pose.silhouette.PersonSilhouettes`
+        (scored when the settings' ``silhouette`` > 0) or None."""
         s = self.s
         velocity = None
         if self.last_position is not None:
@@ -214,6 +226,8 @@ class PersonPose:
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
         self.scorer.set_observation(obs)
         self.scorer.heading = None
+        use = silhouettes is not None and s.silhouette > 0 and float(np.sum(silhouettes.counts)) > 0
+        self.scorer.silhouette = (silhouettes, s.silhouette, self.silhouette_lut) if use else None
         self.scorer.anchor = (float(position[0]), float(position[1]), s.anchor_free, s.anchor) if s.anchor > 0 else None
         # standing still (smoothed track speed < 0.3 m/s): both feet down (the k = 0 hull
         # often lacks a foot a camera sees behind furniture; gesture1's right ankle)
@@ -265,9 +279,10 @@ class PoseEstimator:
         self.settings.validate()
         self.rng = np.random.default_rng(self.settings.seed)
 
-    def update(self, centres: np.ndarray, surface, ids, positions, only=None) -> dict:
+    def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None) -> dict:
         """``{track id: (joints (15, 3), active (15,))}`` for every track with a body
-        (``only``: a predicate on track ids; the others still own their voxels)."""
+        (``only``: a predicate on track ids; the others still own their voxels);
+        ``view``: the frame's :class:`~app.pose.silhouette.SilhouetteView` or None."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
@@ -276,6 +291,7 @@ class PoseEstimator:
         out = {}
         posed = [tid for tid in ids if only is None or only(tid)]
         gamma = self.settings.shbm_gamma(len(posed)) if self.settings.method.startswith("shbm") else None
+        silhouettes = view.people(positions) if view is not None and self.settings.silhouette > 0 else None
         for k, tid in enumerate(ids):
             if only is not None and not only(tid):
                 continue
@@ -284,7 +300,8 @@ class PoseEstimator:
                 person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(
                     [self.settings.seed, tid]))
             mine = owner == k
-            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k], gamma)
+            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k], gamma,
+                                None if silhouettes is None else silhouettes[k])
             if res is not None:
                 out[tid] = res
         for gone in set(self.people) - set(ids):

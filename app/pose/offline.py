@@ -20,6 +20,10 @@ import numpy as np
 
 from app.messages import JOINTS
 from app.pose.estimator import PoseEstimator, PoseSettings
+from app.segmentation import reduce_mask
+
+#: the reconstruction worker's default ``silhouettes`` width
+SILHOUETTE_WIDTH = 80
 
 __all__ = ["ClipFrame", "simulated_clip", "run_clip"]
 
@@ -33,6 +37,8 @@ class ClipFrame:
     positions: np.ndarray        # (P, 3) true centroids
     truth: dict                  # id -> (15, 3)
     visible: dict                # id -> (15,) bool
+    silhouettes: list | None = None   # the masks carved (hull, mog2), reduced as the reconstruction sends them
+    cameras: list | None = None       # ... their cameras
 
 
 SOURCES = ("true", "hull", "mog2")
@@ -91,8 +97,11 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             colours = {c: cv2.resize(images[c], sizes[c], interpolation=cv2.INTER_AREA) for c in sim.cameras} \
                 if surface else {}
             idx, _, flags, _ = rec.reconstruct(masks, colours)
+            silhouettes = [reduce_mask(masks[c], SILHOUETTE_WIDTH) for c in sim.cameras]
             flags = flags if surface and len(flags) == len(idx) else None
         surface_flags = flags
+        if source == "true":
+            silhouettes = None
         centres = np.asarray(cal.room_min) + (idx + 0.5) * voxel_size
         if hide is not None:
             keep = hide(i, centres)
@@ -103,22 +112,30 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             frame=i, centres=centres, surface=surface_flags, ids=ids,
             positions=np.array([p["centroid"] for p in gt["people"]], dtype=float).reshape(-1, 3),
             truth={p["id"]: np.array([p["joints"][n] for n in JOINTS]) for p in gt["people"]},
-            visible={p["id"]: np.array([p.get("visible", {}).get(n, True) for n in JOINTS]) for p in gt["people"]}))
+            visible={p["id"]: np.array([p.get("visible", {}).get(n, True) for n in JOINTS]) for p in gt["people"]},
+            silhouettes=silhouettes, cameras=None if silhouettes is None else list(sim.cameras)))
     return out, cal
 
 
-def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None) -> dict:
+def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None, calibration=None) -> dict:
     """Run the estimator over a clip: ``{"estimates": [{id: joints}], "active":
     [{id: flags}], "ms": [...], "cpu_ms": [...]}`` (wall and thread CPU time per frame).
     ``corrupt(frame, estimator)`` may tamper with the
-    filters before a frame (recovery tests)."""
+    filters before a frame (recovery tests). With ``calibration`` and ``settings.silhouette``
+    > 0 the frames' silhouettes are scored too (:mod:`app.pose.silhouette`)."""
+    from app.pose.silhouette import SilhouetteView
+
     est = PoseEstimator(settings)
     estimates, active, ms, cpu_ms = [], [], [], []
     for fr in clip:
         if corrupt is not None:
             corrupt(fr.frame, est)
         t0, c0 = time.perf_counter(), time.thread_time()
-        res = est.update(fr.centres, fr.surface, fr.ids, fr.positions)
+        view = None
+        if calibration is not None and settings.silhouette > 0 and fr.silhouettes:
+            view = SilhouetteView(fr.silhouettes, [calibration.camera(c) for c in fr.cameras],
+                                  reach=settings.silhouette_reach)
+        res = est.update(fr.centres, fr.surface, fr.ids, fr.positions, view=view)
         ms.append(1e3 * (time.perf_counter() - t0))
         cpu_ms.append(1e3 * (time.thread_time() - c0))
         estimates.append({k: v[0] for k, v in res.items()})

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SUBSETS", "pose_subset", "pose_frame"]
+__all__ = ["SUBSETS", "pose_subset", "pose_frame", "silhouette_view"]
 
 SUBSETS = ("consensus", "tolerant", "all")
 
@@ -58,11 +58,27 @@ def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.nd
     return keep
 
 
-def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None):
+def silhouette_view(vox, cameras: dict | None, settings):
+    """The frame's :class:`~app.pose.silhouette.SilhouetteView` from the silhouettes the
+    voxels carry (``cameras``: the calibration's cameras by name), or None: the term off,
+    no silhouettes sent, or a camera the calibration does not know."""
+    if not cameras or settings.silhouette <= 0:
+        return None
+    masks = vox.silhouette_masks()
+    if not masks or any(name not in cameras for name in vox.cameras):
+        return None
+    from app.pose.silhouette import SilhouetteView
+    return SilhouetteView(masks, [cameras[name] for name in vox.cameras], reach=settings.silhouette_reach)
+
+
+def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None,
+               cameras: dict | None = None):
     """One frame through a :class:`~app.pose.estimator.PoseEstimator` as the pose worker
     poses it: the voxel subset of ``params`` (the worker's ``voxels``, ``tolerant_*``), its
-    surface recomputed where a subset is taken; ``(result {track: (joints, active)}, share
-    of the frame's voxels kept or None)``. ``vox``: a :class:`~app.messages.Voxels`."""
+    surface recomputed where a subset is taken, the silhouettes the voxels carry
+    (``cameras``: the calibration's cameras by name; :func:`silhouette_view`); ``(result
+    {track: (joints, active)}, share of the frame's voxels kept or None)``. ``vox``: a
+    :class:`~app.messages.Voxels`."""
     centres = vox.centres()
     surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
     keep = pose_subset(vox.misses, centres, positions, mode=params["voxels"], cameras=len(vox.cameras),
@@ -72,4 +88,5 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
     if keep is not None:
         centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
         kept = float(keep.mean())
-    return estimator.update(centres, surface, ids, positions, only=only), kept
+    view = silhouette_view(vox, cameras, estimator.settings)
+    return estimator.update(centres, surface, ids, positions, only=only, view=view), kept

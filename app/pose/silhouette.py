@@ -1,0 +1,227 @@
+"""A silhouette term for the pose likelihood: how much of each camera's silhouette of a
+person the model's projection covers.
+
+The voxels the pose stage fits (:mod:`app.pose.selection`, the consensus hull) are the
+intersection of every camera's silhouette cone, so one camera's thin or broken mask
+carves a limb for all of them: on walk1 the swinging forearms and shins are half gone
+from the consensus voxels while each camera's mask still holds 96-98 % of the person
+(docs/benchmarks.md, "Masks against true silhouettes"), and the pose folds the arms
+into the trunk. Each camera's silhouette still shows the limb. This term scores the
+model against the silhouettes themselves, in the direction the voxel scores cannot:
+per camera, the share of the person's silhouette pixels that the model's projection
+covers, ``rho_Sil = mean_c |S_c ∩ proj_c(model)| / |S_c|``, entering the log-likelihood
+as ``-(1 - rho_Sil)^2 / (2 sigma_Sil^2)`` (the form of the coverage term of
+:mod:`app.pose.coverage`). Only coverage is scored, never the model outside a
+silhouette: a limb a camera sees behind furniture is missing from that camera's
+silhouette and must not be pushed away (the voxel scores already keep the model inside
+the data), and the phantoms of the hull cost nothing here (their pixels are other
+people's, or this person's already covered). This is the coverage half of the
+bidirectional silhouette likelihoods of model-based trackers (e.g. Sigal et al.'s
+HumanEva baseline); the thesis poses on voxels only (Ch. 6), so ``silhouette = 0``
+is its likelihood.
+
+Which silhouette pixels are whose: a foreground pixel belongs to the one track whose
+vertical axis its viewing ray passes within ``reach`` of (horizontally, over the
+ray's stretch between the floor and ``top``); pixels near two tracks, or none, belong to
+nobody (people overlapping in a view are scored in the other views). The rays are
+fixed per camera and silhouette size (:class:`CameraRays`, cached).
+
+The model's projection: every surface point of the fleshed model's look-up table
+(:func:`app.pose.likelihood.kernel_lut`, the points the voxel scores use) projected with
+the pinhole model into the reduced silhouettes, which are first remapped once a frame to
+undistorted views (the lens model of §2.2.2 per point cost 3x more); a pixel counts
+once per particle (a stamp grid with a token per particle, never cleared).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
+
+__all__ = ["CameraRays", "SilhouetteView", "PersonSilhouettes", "silhouette_coverage"]
+
+
+class CameraRays:
+    """One camera's reduced silhouettes without lens distortion: the remap from a
+    silhouette of ``width`` x ``height`` to the undistorted pinhole view of the same size
+    (``K`` scaled to it), and per pixel of that view the horizontal stretch (x0, y0, x1, y1)
+    of its viewing ray between heights 0 and ``top`` (``valid``: it has one). The
+    scorer then projects with the pinhole model alone (:func:`_coverage`)."""
+
+    def __init__(self, camera, width: int, height: int, top: float = 2.2, far: float = 30.0):
+        import cv2
+        sx, sy = camera.width / width, camera.height / height
+        K = np.asarray(camera.K, dtype=np.float64)
+        k = np.array([[K[0, 0] / sx, K[0, 1] / sx, (K[0, 2] + 0.5) / sx - 0.5],
+                      [0.0, K[1, 1] / sy, (K[1, 2] + 0.5) / sy - 0.5], [0.0, 0.0, 1.0]])
+        # for each pixel of the undistorted reduced view, where it lies in the full-size image
+        mx, my = cv2.initUndistortRectifyMap(K, np.asarray(camera.dist, np.float64), None, k, (width, height),
+                                             cv2.CV_32FC1)
+        self.map = ((mx + 0.5) / sx - 0.5).astype(np.float32), ((my + 0.5) / sy - 0.5).astype(np.float32)
+        self.intrinsics = np.array([k[0, 0], k[0, 1], k[0, 2], k[1, 1], k[1, 2]])
+        self.R = np.ascontiguousarray(camera.R, dtype=np.float64)
+        self.t = np.asarray(camera.t, dtype=np.float64).ravel()
+        iu, iv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+        yn = (iv - k[1, 2]) / k[1, 1]
+        xn = (iu - k[0, 2] - k[0, 1] * yn) / k[0, 0]
+        d = np.stack([xn, yn, np.ones_like(xn)], axis=-1).reshape(-1, 3) @ self.R   # R^T [x y 1]
+        c = -self.R.T @ self.t
+        dz = d[:, 2]
+        flat = np.abs(dz) < 1e-9
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (0.0 - c[2]) / dz, (top - c[2]) / dz
+        lo = np.where(flat, 0.0, np.minimum(t0, t1))
+        hi = np.where(flat, far if 0 <= c[2] <= top else -1.0, np.maximum(t0, t1))
+        lo, hi = np.maximum(lo, 0.0), np.minimum(hi, far)
+        self.valid = (hi > lo).reshape(height, width)
+        a = c[None, :2] + lo[:, None] * d[:, :2]
+        b = c[None, :2] + hi[:, None] * d[:, :2]
+        self.segments = np.concatenate([a, b], axis=1).reshape(height, width, 4)
+
+    def undistort(self, mask: np.ndarray) -> np.ndarray:
+        """The reduced silhouette in the undistorted pinhole view (nearest pixel; outside: background)."""
+        import cv2
+        return cv2.remap(mask.astype(np.uint8), self.map[0], self.map[1], cv2.INTER_NEAREST,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+
+    def distances(self, rows: np.ndarray, cols: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Horizontal distance ``(n, T)`` from the rays of pixels ``(rows, cols)`` to ``points (T, 2)``."""
+        s = self.segments[rows, cols]
+        a, ab = s[:, None, :2], (s[:, 2:] - s[:, :2])[:, None, :]
+        ap = points[None, :, :2] - a
+        den = np.maximum((ab * ab).sum(-1), 1e-12)
+        u = np.clip((ap * ab).sum(-1) / den, 0.0, 1.0)
+        return np.hypot(*np.moveaxis(ap - u[..., None] * ab, -1, 0))
+
+
+_RAYS: dict = {}
+
+
+def _rays(camera, width: int, height: int) -> CameraRays:
+    key = (camera.name, width, height, np.asarray(camera.K).tobytes(), np.asarray(camera.dist).tobytes(),
+           np.asarray(camera.R).tobytes(), np.asarray(camera.t).tobytes())
+    if key not in _RAYS:
+        if len(_RAYS) > 64:
+            _RAYS.clear()
+        _RAYS[key] = CameraRays(camera, width, height)
+    return _RAYS[key]
+
+
+class PersonSilhouettes:
+    """One person's silhouette pixels in every camera of a frame, for the scorer:
+    ``grids (C, H, W)`` uint8 (undistorted views, padded to the largest camera),
+    ``counts (C,)`` (0: the camera is not scored), the views' pinhole intrinsics ``(C, 5)``
+    (fx, skew, cx, fy, cy) and the cameras' ``R (C, 3, 3)``, ``t (C, 3)``."""
+
+    def __init__(self, grids, counts, intrinsics, R, t):
+        self.grids, self.counts, self.intrinsics, self.R, self.t = grids, counts, intrinsics, R, t
+
+
+class SilhouetteView:
+    """A frame's silhouettes (``masks``, one boolean (h, w) per camera) and the cameras
+    (``cameras``: calibration cameras, same order); :meth:`people` splits them by track."""
+
+    def __init__(self, masks: list, cameras: list, reach: float = 0.6, min_pixels: int = 20):
+        self.rays = [_rays(c, m.shape[1], m.shape[0]) for c, m in zip(cameras, masks)]
+        self.masks = [r.undistort(np.asarray(m, bool)) for r, m in zip(self.rays, masks)]
+        self.reach = float(reach)
+        self.min_pixels = int(min_pixels)
+
+    def people(self, positions: np.ndarray) -> list[PersonSilhouettes]:
+        """Per track (``positions (T, 3)``) its :class:`PersonSilhouettes`."""
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        T, C = len(positions), len(self.masks)
+        H = max((m.shape[0] for m in self.masks), default=1)
+        W = max((m.shape[1] for m in self.masks), default=1)
+        grids = np.zeros((T, C, H, W), np.uint8)
+        counts = np.zeros((T, C))
+        for c, (mask, rays) in enumerate(zip(self.masks, self.rays)):
+            rows, cols = np.nonzero(mask & rays.valid)
+            if not len(rows) or not T:
+                continue
+            near = rays.distances(rows, cols, positions) < self.reach
+            one = near.sum(axis=1) == 1
+            owner = np.argmax(near, axis=1)
+            for k in range(T):
+                mine = one & (owner == k)
+                n = int(mine.sum())
+                if n >= self.min_pixels:
+                    grids[k, c, rows[mine], cols[mine]] = 1
+                    counts[k, c] = n
+        intr = np.array([r.intrinsics for r in self.rays]).reshape(C, 5)
+        R = np.array([r.R for r in self.rays]).reshape(C, 3, 3)
+        t = np.array([r.t for r in self.rays]).reshape(C, 3)
+        return [PersonSilhouettes(grids[k], counts[k], intr, R, t) for k in range(T)]
+
+
+def silhouette_coverage(states, height, lut, active, person: PersonSilhouettes, stamp, token: int) -> np.ndarray:
+    """``rho_Sil (P,)`` of every state: the mean over the scored cameras of the share of
+    the person's silhouette pixels covered by the projected surface points of the
+    ``active`` parts. ``stamp``: an int64 grid of ``person.grids``' shape kept by the
+    caller with ``token`` growing by ``len(states)`` a call (no clearing)."""
+    out = np.empty(len(states))
+    _coverage(np.ascontiguousarray(states, dtype=np.float64), float(height), lut.lx, lut.ly, lut.lz,
+              lut.part_start, lut.part_segment, lut.part_surface, np.asarray(active, np.bool_), person.intrinsics,
+              person.R, person.t, person.grids, stamp, int(token), person.counts, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _coverage(states, height, lx, ly, lz, part_start, part_segment, part_surface, active, intr, cam_R, cam_t,
+              grids, stamp, token0, counts, seg_parent, seg_offset, dof_segment, dof_axis, out):
+    """Per state: forward kinematics, then per active part and scored camera the part's
+    surface points straight into the camera (the segment's and the camera's rotations
+    composed once), pinhole projection, and each silhouette pixel hit counted once."""
+    S = seg_parent.shape[0]
+    R = np.zeros((S, 3, 3))
+    O = np.zeros((S, 3))
+    C = intr.shape[0]
+    H, W = grids.shape[1], grids.shape[2]
+    cov = np.zeros(C)
+    A = np.empty((3, 3))
+    b = np.empty(3)
+    n_cams = 0
+    for c in range(C):
+        if counts[c] > 0:
+            n_cams += 1
+    for k in range(states.shape[0]):
+        token = token0 + k
+        fk_segments(states[k], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O, None)
+        for c in range(C):
+            cov[c] = 0.0
+        for q in range(part_start.shape[0] - 1):
+            if not active[q]:
+                continue
+            s = part_segment[q]
+            m0 = part_start[q]
+            m1 = m0 + part_surface[q]
+            for c in range(C):
+                if counts[c] <= 0:
+                    continue
+                for i in range(3):
+                    b[i] = cam_t[c, i]
+                    for j in range(3):
+                        A[i, j] = cam_R[c, i, 0] * R[s, 0, j] + cam_R[c, i, 1] * R[s, 1, j] + cam_R[c, i, 2] * R[s, 2, j]
+                        b[i] += cam_R[c, i, j] * O[s, j]
+                fx, sk, cx, fy, cy = intr[c, 0], intr[c, 1], intr[c, 2], intr[c, 3], intr[c, 4]
+                for m in range(m0, m1):
+                    z = A[2, 0] * lx[m] + A[2, 1] * ly[m] + A[2, 2] * lz[m] + b[2]
+                    if z <= 1e-6:
+                        continue
+                    x = (A[0, 0] * lx[m] + A[0, 1] * ly[m] + A[0, 2] * lz[m] + b[0]) / z
+                    y = (A[1, 0] * lx[m] + A[1, 1] * ly[m] + A[1, 2] * lz[m] + b[1]) / z
+                    fu = fx * x + sk * y + cx + 0.5
+                    fv = fy * y + cy + 0.5
+                    if fu < 0.0 or fv < 0.0 or fu >= W or fv >= H:
+                        continue
+                    iu = int(fu)
+                    iv = int(fv)
+                    if grids[c, iv, iu] != 0 and stamp[c, iv, iu] != token:
+                        stamp[c, iv, iu] = token
+                        cov[c] += 1.0
+        total = 0.0
+        for c in range(C):
+            if counts[c] > 0:
+                total += cov[c] / counts[c]
+        out[k] = total / n_cams if n_cams else 1.0
