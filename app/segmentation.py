@@ -91,16 +91,13 @@ def shrink(image: np.ndarray, scale: int) -> np.ndarray:
     return image
 
 
-def reduce_mask(mask: np.ndarray, width: int) -> np.ndarray:
-    """A boolean mask reduced by halving until it is at most ``width`` wide (a pixel is
-    foreground when at least half of what it covers is); as is when already that small."""
+def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:
+    """A boolean mask reduced by an integer ``factor`` (a pixel is foreground when at least
+    half of what it covers is); as is for a factor of 1."""
     mask = np.asarray(mask, bool)
-    scale = 1
-    while mask.shape[1] // scale > width and mask.shape[1] // (2 * scale) >= 1:
-        scale *= 2
-    if scale == 1:
+    if int(factor) <= 1:
         return mask
-    return shrink(mask.astype(np.float32), scale) >= 0.5
+    return shrink(mask.astype(np.float32), int(factor)) >= 0.5
 
 
 def estimate_background(images) -> np.ndarray:

@@ -83,7 +83,7 @@ def _posed_points(state, spacing=0.01):
     return O[flesh.segment] + np.einsum("nij,nj->ni", R[flesh.segment], flesh.points)
 
 
-def _render(calibration, states, width=80):
+def _render(calibration, states, factor=8):
     """Each camera's silhouette of the bodies in ``states``, drawn with the lens model at
     full size (dense model points, closed) and reduced as the reconstruction sends it."""
     out = []
@@ -96,7 +96,7 @@ def _render(calibration, states, width=80):
             inside = (px[:, 0] >= 0) & (px[:, 1] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] < cam.height)
             mask[px[inside, 1], px[inside, 0]] = 1
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
-        out.append(reduce_mask(mask.astype(bool), width))
+        out.append(reduce_mask(mask.astype(bool), factor))
     return out
 
 
@@ -166,7 +166,7 @@ def test_silhouettes_pose_the_limbs_the_hull_carves(walk_hull_clip):
         for seed in (0, 1):
             settings = PoseSettings(voxel_size=0.02, density=2, room_lo=tuple(cal.room_min),
                                     room_hi=tuple(cal.room_max), importance_fraction=0.35, ground=0.01,
-                                    silhouette=sil, silhouette_spacing=0.08, seed=seed)
+                                    silhouette=sil, seed=seed)
             E = clip_errors(clip, run_clip(clip, settings, calibration=cal)["estimates"])[6:]
             scores.append(float((E <= 0.1).mean()))
         mmta[sil] = float(np.mean(scores))

@@ -30,6 +30,14 @@ the one-miss voxels below ``tolerant_low`` (m) within ``tolerant_near`` (m) of a
 frames where at least ``tolerant_views`` cameras still see them (the shins and feet the
 consensus carves; :mod:`app.pose.selection`).
 
+``silhouette`` (sigma^2; 0 = off) adds the silhouette term of :mod:`app.pose.silhouette`: the
+reconstruction sends the frame's masks, reduced, with the voxels (its ``silhouettes``
+parameter), and each person's model is also scored by how much of that person's
+silhouettes in every camera its projection covers, which holds the limbs that one
+camera's mask carves from the consensus voxels. The worker then needs the run's
+calibration (the recording's, or ``--calibration``); voxels without silhouettes are posed
+without the term (one warning).
+
 A restarted pose worker carries every person's filter on: the estimator's state
 (:mod:`app.pose.snapshot`) is saved with the frame it belongs to every
 ``snapshot_frames`` frames (and with the worker's state); the next incarnation restores
@@ -96,8 +104,8 @@ class Pose(Worker):
         "silhouette": 0.0005,       # sigma^2 of the silhouette term (the masks the voxels carry, app.pose.silhouette;
                                     # walk1 2 cm MMTA 0.877 -> 0.92, meeting3 0.84 -> 0.86, docs/benchmarks.md);
                                     # 0 = off (the thesis)
-        "silhouette_spacing": 0.08,  # m: the model's points for the term on a lattice this fine (about a silhouette
-                                     # pixel); 0 = the voxel scores' points (density x voxel size: 2-4x the cost)
+        "silhouette_density": 2.0,  # the model's points for the term on a lattice of this many voxel sizes (about a
+                                    # pixel of the silhouettes the reconstruction sends)
         "silhouette_reach": 0.6,    # m: a silhouette pixel is a person's when its ray passes this near only that track
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
@@ -111,7 +119,7 @@ class Pose(Worker):
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
-              "silhouette": (0.0, 10.0), "silhouette_spacing": (0.0, 0.5), "silhouette_reach": (0.05, 3.0),
+              "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
               "snapshot_frames": (1, 1000)}
 
     def setup(self) -> None:

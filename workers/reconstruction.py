@@ -65,15 +65,16 @@ class Reconstruction(Worker):
                                      # covers, in every camera, under this; app/reconstruction/ghosts.py); 0 = keep all
         "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
                                      # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
-        "silhouettes": 80,           # the frame's masks go with the voxels, halved until at most this wide (the
-                                     # pose stage's silhouette term, app.pose.silhouette; 600 bytes a camera); 0 = not
+        "silhouettes": 2,            # the frame's masks go with the voxels, reduced by this factor (the pose stage's
+                                     # silhouette term, app.pose.silhouette; 160x120 at 2 cm, 80x60 at 4 cm from
+                                     # 640x480 cameras: 2.4 / 0.6 kB a camera); 0 = not sent
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
               "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
               "occlusion_evidence": (0, 100000), "occlusion_ratio": (0.0, 1.0), "occlusion_cell": (0.01, 1.0),
               "ghost_share": (0.0, 1.0),
-              "footprint": (0.0, 1.0), "min_component": (0, 1_000_000), "silhouettes": (0, 4096)}
+              "footprint": (0.0, 1.0), "min_component": (0, 1_000_000), "silhouettes": (0, 64)}
     CHOICES = {"colouring": ("visibility", "raymarch", "naive", "none"), "occlusion": ("none", "learnt", "cells")}
 
     def setup(self) -> None:
@@ -269,9 +270,9 @@ class Reconstruction(Worker):
                      origin=[float(v) for v in grid.origin], dims=[int(v) for v in grid.dims],
                      cameras=cameras, indices=indices, colours=colours, surface=surface,
                      misses=self.reconstructor.misses)
-        width = int(self.params["silhouettes"])
-        if width > 0:
-            vox.with_silhouettes([reduce_mask(mask_arrays[c], width) for c in cameras])
+        factor = int(self.params["silhouettes"])
+        if factor > 0:
+            vox.with_silhouettes([reduce_mask(mask_arrays[c], factor) for c in cameras])
         self.publish(self.keys.voxels(), vox)
 
     def extra_figures(self) -> dict:

@@ -41,9 +41,9 @@ def bench_pose(scenes=("gesture1", "walk1"), frames: int = 75, start: int = 0, v
     likelihood); ``seeds``: filter seeds, errors pooled over them; ``surface``: hull
     voxels carry the reconstruction's visibility surface flags, as in the pipeline
     (default: the 6-neighbour boundary the observation computes)."""
-    clips = {}
+    clips, cals = {}, {}
     for scene in scenes:
-        clips[scene], cal = simulated_clip(scene, range(start, start + frames), voxel_size, source=source,
+        clips[scene], cals[scene] = simulated_clip(scene, range(start, start + frames), voxel_size, source=source,
                                            tolerance=tolerance, occlusion=occlusion, surface=surface)
     rows = []
     for label, method, extra in CONFIGS:
@@ -51,12 +51,13 @@ def bench_pose(scenes=("gesture1", "walk1"), frames: int = 75, start: int = 0, v
             continue
         for density in densities:
             for scene, clip in clips.items():
+                cal = cals[scene]
                 Es, ms, cpu = [], [], []
                 for seed in seeds:
                     s = PoseSettings(method=method, voxel_size=voxel_size, density=float(density), seed=int(seed),
                                      room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
                                      **{**extra, **(settings or {})})
-                    res = run_clip(clip, s)
+                    res = run_clip(clip, s, calibration=cal)   # silhouettes scored when s.silhouette > 0
                     Es.append(clip_errors(clip, res["estimates"])[warmup:])
                     ms += res["ms"][warmup:]
                     cpu += res["cpu_ms"][warmup:]

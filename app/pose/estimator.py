@@ -71,7 +71,7 @@ class PoseSettings:
     anchor_free: float = 0.25       # m
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     silhouette: float = 0.0         # sigma^2 of the silhouette term (app.pose.silhouette); 0 = off (the thesis)
-    silhouette_spacing: float = 0.0  # m: the model's points for it on a lattice this fine; 0 = the voxel scores' points
+    silhouette_density: float = 2.0  # ... the model's points for it on a lattice of this many voxel sizes (Eq. 6.26's factor)
     silhouette_reach: float = 0.6   # m: a silhouette pixel is a track's when its ray passes this near the track only
     height_frames: int = 5
     seed: int = 0
@@ -107,9 +107,8 @@ class PoseSettings:
             raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
             raise ValueError(f"density {self.density} must be >= 1")
-        if not (self.silhouette >= 0 and self.silhouette_spacing >= 0 and self.silhouette_reach > 0):
-            raise ValueError("silhouette and silhouette_spacing must be >= 0 (0: off, the model's points), "
-                             "silhouette_reach > 0")
+        if not (self.silhouette >= 0 and self.silhouette_density >= 0.5 and self.silhouette_reach > 0):
+            raise ValueError("silhouette must be >= 0 (0: off), silhouette_density >= 0.5, silhouette_reach > 0")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
             raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
 
@@ -186,8 +185,8 @@ class PersonPose:
         self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
-        self.silhouette_lut = (kernel_lut(_flesh(height, s.silhouette_spacing, 1.0))
-                               if s.silhouette > 0 and s.silhouette_spacing > 0 else None)
+        self.silhouette_lut = (kernel_lut(_flesh(height, s.voxel_size, s.silhouette_density))
+                               if s.silhouette > 0 else None)
         self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):

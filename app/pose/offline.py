@@ -22,8 +22,8 @@ from app.messages import JOINTS
 from app.pose.estimator import PoseEstimator, PoseSettings
 from app.segmentation import reduce_mask
 
-#: the reconstruction worker's default ``silhouettes`` width
-SILHOUETTE_WIDTH = 80
+#: the reconstruction worker's default ``silhouettes`` factor
+SILHOUETTE_FACTOR = 2
 
 __all__ = ["ClipFrame", "simulated_clip", "run_clip"]
 
@@ -97,7 +97,7 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             colours = {c: cv2.resize(images[c], sizes[c], interpolation=cv2.INTER_AREA) for c in sim.cameras} \
                 if surface else {}
             idx, _, flags, _ = rec.reconstruct(masks, colours)
-            silhouettes = [reduce_mask(masks[c], SILHOUETTE_WIDTH) for c in sim.cameras]
+            silhouettes = [reduce_mask(masks[c], SILHOUETTE_FACTOR) for c in sim.cameras]
             flags = flags if surface and len(flags) == len(idx) else None
         surface_flags = flags
         if source == "true":

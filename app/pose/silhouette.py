@@ -181,6 +181,12 @@ def _coverage(states, height, lx, ly, lz, part_start, part_segment, part_surface
     cov = np.zeros(C)
     A = np.empty((3, 3))
     b = np.empty(3)
+    most = 0
+    for q in range(part_start.shape[0] - 1):
+        most = max(most, part_surface[q])
+    pix = np.empty(most, np.int64)
+    flat = grids.reshape(C, H * W)
+    flat_stamp = stamp.reshape(C, H * W)
     n_cams = 0
     for c in range(C):
         if counts[c] > 0:
@@ -205,20 +211,23 @@ def _coverage(states, height, lx, ly, lz, part_start, part_segment, part_surface
                         A[i, j] = cam_R[c, i, 0] * R[s, 0, j] + cam_R[c, i, 1] * R[s, 1, j] + cam_R[c, i, 2] * R[s, 2, j]
                         b[i] += cam_R[c, i, j] * O[s, j]
                 fx, sk, cx, fy, cy = intr[c, 0], intr[c, 1], intr[c, 2], intr[c, 3], intr[c, 4]
+                a00, a01, a02, b0 = A[0, 0], A[0, 1], A[0, 2], b[0]
+                a10, a11, a12, b1 = A[1, 0], A[1, 1], A[1, 2], b[1]
+                a20, a21, a22, b2 = A[2, 0], A[2, 1], A[2, 2], b[2]
+                # branch-free projection into a pixel index (-1: not in the view), vectorised
                 for m in range(m0, m1):
-                    z = A[2, 0] * lx[m] + A[2, 1] * ly[m] + A[2, 2] * lz[m] + b[2]
-                    if z <= 1e-6:
-                        continue
-                    x = (A[0, 0] * lx[m] + A[0, 1] * ly[m] + A[0, 2] * lz[m] + b[0]) / z
-                    y = (A[1, 0] * lx[m] + A[1, 1] * ly[m] + A[1, 2] * lz[m] + b[1]) / z
+                    z = a20 * lx[m] + a21 * ly[m] + a22 * lz[m] + b2
+                    inv = 1.0 / max(z, 1e-6)
+                    x = (a00 * lx[m] + a01 * ly[m] + a02 * lz[m] + b0) * inv
+                    y = (a10 * lx[m] + a11 * ly[m] + a12 * lz[m] + b1) * inv
                     fu = fx * x + sk * y + cx + 0.5
                     fv = fy * y + cy + 0.5
-                    if fu < 0.0 or fv < 0.0 or fu >= W or fv >= H:
-                        continue
-                    iu = int(fu)
-                    iv = int(fv)
-                    if grids[c, iv, iu] != 0 and stamp[c, iv, iu] != token:
-                        stamp[c, iv, iu] = token
+                    ok = (z > 1e-6) & (fu >= 0.0) & (fv >= 0.0) & (fu < W) & (fv < H)
+                    pix[m - m0] = np.int64(fv) * W + np.int64(fu) if ok else -1
+                for i in range(m1 - m0):
+                    f = pix[i]
+                    if f >= 0 and flat[c, f] != 0 and flat_stamp[c, f] != token:
+                        flat_stamp[c, f] = token
                         cov[c] += 1.0
         total = 0.0
         for c in range(C):
