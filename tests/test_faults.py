@@ -721,3 +721,18 @@ def test_a_frame_lost_on_its_way_to_the_bus_is_put_out_again(meeting, calm_meeti
         st = s["stages"][name]
         assert (st["frames_in"], st["frames_out"], st["frames_missing"], st["frames_dropped"]) == (150, 150, 0, 0), st
     assert_results_as_undisturbed(out, calm)
+
+
+def test_commands_started_in_the_same_second_get_their_own_results_folder(tmp_path, monkeypatch):
+    """Two benches started together once shared runs/bench/<second> and one failed ("cannot
+    write there") when the other removed its write probe; a default folder is now made anew."""
+    import argparse
+    import time
+
+    from app.commands.options import resolve_out
+    monkeypatch.setattr(time, "strftime", lambda fmt: "20261123-145852")
+    args = argparse.Namespace(out=None)
+    first = resolve_out(args, prefix=str(tmp_path / "runs"))
+    second = resolve_out(args, prefix=str(tmp_path / "runs"))
+    assert first != second and first.is_dir() and second.is_dir()
+    assert second.name == "20261123-145852-2"

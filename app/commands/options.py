@@ -1,6 +1,7 @@
 """Options shared by the verbs that run a pipeline (run, bench), resolved in one place."""
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -83,7 +84,9 @@ RESULT_FILES = ("stats.json", "layout.yaml", "tracks.jsonl", "poses.jsonl", "vox
 def resolve_out(args, prefix: str = "runs") -> Path:
     """A new (or empty) results folder, created and checked writable: a run never writes
     over the results of another."""
-    out = Path(args.out) if args.out else Path(prefix) / time.strftime("%Y%m%d-%H%M%S")
+    if not args.out:
+        return _fresh_folder(Path(prefix) / time.strftime("%Y%m%d-%H%M%S"))
+    out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     if out.is_dir():
@@ -93,9 +96,26 @@ def resolve_out(args, prefix: str = "runs") -> Path:
                              "choose another folder or remove it")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
+        probe = out / f".write-test-{os.getpid()}"   # two commands may check one folder at once
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write there ({exc.strerror or exc.__class__.__name__})") from None
     return out.resolve()
+
+
+def _fresh_folder(base: Path) -> Path:
+    """``base``, or ``base-2``, ``base-3``, ... : a folder this command alone creates (two
+    commands started in the same second get their own)."""
+    for n in range(1, 1000):
+        out = base if n == 1 else base.with_name(f"{base.name}-{n}")
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.mkdir()
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise InputError(f"{out}: cannot create the results folder "
+                             f"({exc.strerror or exc.__class__.__name__}); choose one with --out") from None
+        return out.resolve()
+    raise InputError(f"{base}: too many results folders of this second; choose one with --out")
