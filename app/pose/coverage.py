@@ -253,7 +253,6 @@ class CoverageScorer(Scorer):
         person, sigma2, lut = self.silhouette
         if self._sil_stamp is None or self._sil_stamp.shape != person.grids.shape:
             self._sil_stamp = np.zeros(person.grids.shape, np.int64)
-        rho = silhouette_coverage(states, self.flesh.height, lut if lut is not None else self.lut, act, person, self._sil_stamp,
-                                  self._sil_token)
+        rho = silhouette_coverage(states, self.flesh.height, lut, act, person, self._sil_stamp, self._sil_token)
         self._sil_token += len(states)
         return 0.5 * (1.0 - rho) ** 2 / sigma2

@@ -185,9 +185,10 @@ class PersonPose:
         self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
+        self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
+        # the silhouette term's model points: a lattice of about one silhouette pixel (app.pose.silhouette)
         self.silhouette_lut = (kernel_lut(_flesh(height, s.voxel_size, s.silhouette_density))
                                if s.silhouette > 0 else None)
-        self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm"):
             self.filter = SHBMAPF(gamma=s.gamma, **kw)

@@ -26,11 +26,16 @@ ray's stretch between the floor and ``top``); pixels near two tracks, or none, b
 nobody (people overlapping in a view are scored in the other views). The rays are
 fixed per camera and silhouette size (:class:`CameraRays`, cached).
 
-The model's projection: every surface point of the fleshed model's look-up table
-(:func:`app.pose.likelihood.kernel_lut`, the points the voxel scores use) projected with
+The model's projection: the surface points of the fleshed model (a look-up table of
+:func:`app.pose.likelihood.kernel_lut` built for the term on a lattice of
+``silhouette_density`` voxel sizes, about one reduced silhouette pixel) projected with
 the pinhole model into the reduced silhouettes, which are first remapped once a frame to
 undistorted views (the lens model of §2.2.2 per point cost 3x more); a pixel counts
 once per particle (a stamp grid with a token per particle, never cleared).
+
+Figures (docs/benchmarks.md, "The silhouettes themselves"): replays of the pipeline's
+voxels over 30 pose seeds, walk1 at 2 cm MMTA 0.878 -> 0.930, meeting3 at 4 cm 0.825 ->
+0.861, gesture1 0.953 -> 0.968; the default pipeline on meeting3 stays real time.
 """
 from __future__ import annotations
 
