@@ -151,6 +151,9 @@ class Pose(Worker):
         self.catching = False          # restored: posing the frames put out before, unpublished
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
+        if self.settings.silhouette > 0:
+            from app.pose.silhouette import warm_up
+            warm_up()
         if self.settings.ik == "table":
             from app.pose.detections import arm_table
             arm_table("l"), arm_table("r")      # the inverse-kinematics tables, before the first frame
@@ -279,9 +282,10 @@ class Pose(Worker):
         if self.share is not None:
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
-        result, kept = pose_frame(self._estimator(vox), vox, ids, positions, self.params, only=only,
-                                  cameras=self.cameras_by_name)
-        self._count_silhouettes(vox)
+        result, kept, no_silhouettes = pose_frame(self._estimator(vox), vox, ids, positions, self.params,
+                                                  only=only, cameras=self.cameras_by_name)
+        if self.settings.silhouette > 0:
+            self._count_silhouettes(vox.frame, no_silhouettes)
         if kept is not None:
             self.kept.append(kept)
         order = sorted(result)
@@ -294,16 +298,12 @@ class Pose(Worker):
         self.publish(self.keys.poses(), Poses(**same, frame=vox.frame, stamp=vox.stamp, t=vox.t, worker=self.name,
                                               tracks=np.array(order, dtype=np.int64), joints=joints, active=active))
 
-    def _count_silhouettes(self, vox: Voxels) -> None:
-        if not self.settings.silhouette > 0:
-            return
-        used = self.cameras_by_name is not None and vox.silhouettes is not None and vox.silhouettes.size > 0
+    def _count_silhouettes(self, frame: int, why_not: str | None) -> None:
+        """Frames posed with and without the silhouettes; the first without says why."""
         self.silhouette_frames[1] += 1
-        self.silhouette_frames[0] += int(used)
-        if not used and self.silhouette_frames[1] - self.silhouette_frames[0] == 1:
-            why = ("no calibration" if self.cameras_by_name is None else
-                   "the voxels carry no silhouettes (reconstruction.silhouettes = 0, or an older reconstruction)")
-            self.log.warning("frame %d: the silhouette term is off: %s", vox.frame, why)
+        self.silhouette_frames[0] += why_not is None
+        if why_not is not None and self.silhouette_frames[1] - self.silhouette_frames[0] == 1:
+            self.log.warning("frame %d: the silhouette term is off: %s", frame, why_not)
 
     def extra_figures(self) -> dict:
         c = getattr(self, "people_counts", [])

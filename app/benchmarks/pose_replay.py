@@ -104,7 +104,7 @@ def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, 
         t0 = time.process_time()
         for m in msgs:
             ids, positions = tracks.get(m.frame, empty)
-            result, _ = pose_frame(est, m, ids, positions, params, cameras=cameras)
+            result = pose_frame(est, m, ids, positions, params, cameras=cameras).result
             people, visible = truth[m.frame]
             scored.append((people, {t: r[0] for t, r in result.items()}, visible))
         cpu = (time.process_time() - t0) / len(msgs) * 1e3

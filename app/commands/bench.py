@@ -152,20 +152,38 @@ def _simulate(args, out: Path) -> dict:
     return bench_render(args.scene, frames=args.frames or 50, seconds=args.seconds, zenithal=args.zenithal)
 
 
-def _pose_replay(args) -> dict:
+def _pose_set(args) -> dict:
+    """``--pose-set KEY=VALUE,...``: values typed as in a layout (0.5, true, tolerant; YAML),
+    and numbers YAML reads as text (5e-4) as numbers."""
     import yaml
 
+    from app.errors import InputError
+
+    out = {}
+    for item in filter(None, args.pose_set.split(",")):
+        key, _, value = (v.strip() for v in item.partition("="))
+        if not key or not value:
+            raise InputError(f"--pose-set {item}: expected KEY=VALUE (a pose parameter)")
+        try:
+            typed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise InputError(f"--pose-set {item}: the value is not valid YAML") from None
+        if isinstance(typed, str):
+            try:
+                typed = float(value)
+            except ValueError:
+                pass
+        out[key] = typed
+    return out
+
+
+def _pose_replay(args) -> dict:
     from app.benchmarks.pose_replay import HEADER, format_replay, replay_poses
     from app.errors import InputError
 
     if not args.recording:
         raise InputError("--replay needs --recording DIR (the recording the run was made on: its ground truth)")
-    overrides = {}
-    for item in filter(None, args.pose_set.split(",")):
-        key, _, value = (v.strip() for v in item.partition("="))
-        if not key or not value:
-            raise InputError(f"--pose-set {item}: expected KEY=VALUE (a pose worker parameter)")
-        overrides[key] = yaml.safe_load(value)   # typed as in a layout: 0.5, true, tolerant
+    overrides = _pose_set(args)
     print(f"smartroom bench pose --replay {args.replay}: {args.pose_seeds} seed(s), one core", file=sys.stderr)
     print(HEADER)
     result = replay_poses(args.replay, args.recording, seeds=tuple(range(args.pose_seeds)), overrides=overrides)
@@ -192,15 +210,10 @@ def _pose(args, out: Path) -> dict:
 
     from app.pose.estimator import PoseSettings
     known = {f.name for f in fields(PoseSettings)}
-    settings = {}
-    for item in filter(None, args.pose_set.split(",")):
-        key, _, value = (v.strip() for v in item.partition("="))
-        if key not in known or not value:
-            raise InputError(f"--pose-set {item}: expected KEY=VALUE with KEY one of {', '.join(sorted(known))}")
-        try:
-            settings[key] = float(value)
-        except ValueError:
-            settings[key] = value
+    settings = _pose_set(args)
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise InputError(f"--pose-set {unknown[0]}: not a pose setting (one of {', '.join(sorted(known))})")
     rows = pose.bench_pose(scenes=tuple(args.pose_scenes.split(",")), frames=frames, voxel_size=voxel,
                            densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels,
                            tolerance=args.tolerance, settings=settings, seeds=tuple(range(args.pose_seeds)),

@@ -80,6 +80,7 @@ from app.messages import JOINTS
 from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
 from app.pose.model import joints_subset, segments_needed, standing_root_height
+from app.pose.silhouette import silhouette_coverage
 
 __all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "ground_penalty",
            "anchor_penalty", "STANCE_FREE"]
@@ -249,7 +250,6 @@ class CoverageScorer(Scorer):
 
     def _silhouette_penalty(self, states, act) -> np.ndarray:
         """``(1 - rho_Sil)^2 / (2 sigma^2)`` of :mod:`app.pose.silhouette` (whole model only)."""
-        from app.pose.silhouette import silhouette_coverage
         person, sigma2, lut = self.silhouette
         if self._sil_stamp is None or self._sil_stamp.shape != person.grids.shape:
             self._sil_stamp = np.zeros(person.grids.shape, np.int64)

@@ -291,7 +291,7 @@ class PoseEstimator:
         out = {}
         posed = [tid for tid in ids if only is None or only(tid)]
         gamma = self.settings.shbm_gamma(len(posed)) if self.settings.method.startswith("shbm") else None
-        silhouettes = view.people(positions) if view is not None and self.settings.silhouette > 0 else None
+        silhouettes = view.people(positions) if view is not None else None
         for k, tid in enumerate(ids):
             if only is not None and not only(tid):
                 continue

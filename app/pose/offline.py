@@ -123,18 +123,16 @@ def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None, calibr
     ``corrupt(frame, estimator)`` may tamper with the
     filters before a frame (recovery tests). With ``calibration`` and ``settings.silhouette``
     > 0 the frames' silhouettes are scored too (:mod:`app.pose.silhouette`)."""
-    from app.pose.silhouette import SilhouetteView
+    from app.pose.selection import silhouette_view
 
+    cameras = {c.name: c for c in calibration.cameras} if calibration is not None else None
     est = PoseEstimator(settings)
     estimates, active, ms, cpu_ms = [], [], [], []
     for fr in clip:
         if corrupt is not None:
             corrupt(fr.frame, est)
         t0, c0 = time.perf_counter(), time.thread_time()
-        view = None
-        if calibration is not None and settings.silhouette > 0 and fr.silhouettes:
-            view = SilhouetteView(fr.silhouettes, [calibration.camera(c) for c in fr.cameras],
-                                  reach=settings.silhouette_reach)
+        view, _ = silhouette_view(fr.silhouettes or [], fr.cameras or [], cameras, settings)
         res = est.update(fr.centres, fr.surface, fr.ids, fr.positions, view=view)
         ms.append(1e3 * (time.perf_counter() - t0))
         cpu_ms.append(1e3 * (time.thread_time() - c0))

@@ -23,9 +23,11 @@ this subset is ours.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ["SUBSETS", "pose_subset", "pose_frame", "silhouette_view"]
+__all__ = ["SUBSETS", "pose_subset", "pose_frame", "silhouette_view", "PosedFrame"]
 
 SUBSETS = ("consensus", "tolerant", "all")
 
@@ -58,26 +60,35 @@ def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.nd
     return keep
 
 
-def silhouette_view(vox, cameras: dict | None, settings):
-    """The frame's :class:`~app.pose.silhouette.SilhouetteView` from the silhouettes the
-    voxels carry (``cameras``: the calibration's cameras by name), or None: the term off,
-    no silhouettes sent, or a camera the calibration does not know."""
-    if not cameras or settings.silhouette <= 0:
-        return None
-    masks = vox.silhouette_masks()
-    if not masks or any(name not in cameras for name in vox.cameras):
-        return None
+class PosedFrame(NamedTuple):
+    result: dict                # {track: (joints (15, 3), active (15,))}
+    kept: float | None          # share of the frame's voxels posed on (a subset), or None
+    no_silhouettes: str | None  # why the silhouette term was off although asked for, or None
+
+
+def silhouette_view(masks: list, names: list, cameras: dict | None, settings):
+    """``(view, why not)``: the frame's :class:`~app.pose.silhouette.SilhouetteView` of the
+    silhouettes ``masks`` of cameras ``names`` (``cameras``: the calibration's by name), or
+    None and why (None when the term is off)."""
+    if settings.silhouette <= 0:
+        return None, None
+    if not cameras:
+        return None, "no calibration (the recording's, or --calibration)"
+    if not masks:
+        return None, "the voxels carry no silhouettes (reconstruction.silhouettes = 0, or an older reconstruction)"
+    unknown = [n for n in names if n not in cameras]
+    if unknown:
+        return None, f"camera {unknown[0]} is not in the calibration"
     from app.pose.silhouette import SilhouetteView
-    return SilhouetteView(masks, [cameras[name] for name in vox.cameras], reach=settings.silhouette_reach)
+    return SilhouetteView(masks, [cameras[n] for n in names], reach=settings.silhouette_reach), None
 
 
 def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None,
-               cameras: dict | None = None):
+               cameras: dict | None = None) -> PosedFrame:
     """One frame through a :class:`~app.pose.estimator.PoseEstimator` as the pose worker
     poses it: the voxel subset of ``params`` (the worker's ``voxels``, ``tolerant_*``), its
     surface recomputed where a subset is taken, the silhouettes the voxels carry
-    (``cameras``: the calibration's cameras by name; :func:`silhouette_view`); ``(result
-    {track: (joints, active)}, share of the frame's voxels kept or None)``. ``vox``: a
+    (``cameras``: the calibration's cameras by name; :func:`silhouette_view`). ``vox``: a
     :class:`~app.messages.Voxels`."""
     centres = vox.centres()
     surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
@@ -88,5 +99,6 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
     if keep is not None:
         centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
         kept = float(keep.mean())
-    view = silhouette_view(vox, cameras, estimator.settings)
-    return estimator.update(centres, surface, ids, positions, only=only, view=view), kept
+    masks = vox.silhouette_masks() if estimator.settings.silhouette > 0 else []
+    view, why = silhouette_view(masks, vox.cameras, cameras, estimator.settings)
+    return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view), kept, why)

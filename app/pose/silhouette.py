@@ -44,7 +44,7 @@ from numba import njit
 
 from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
 
-__all__ = ["CameraRays", "SilhouetteView", "PersonSilhouettes", "silhouette_coverage"]
+__all__ = ["CameraRays", "SilhouetteView", "PersonSilhouettes", "silhouette_coverage", "warm_up"]
 
 
 class CameraRays:
@@ -239,3 +239,16 @@ def _coverage(states, height, lx, ly, lz, part_start, part_segment, part_surface
             if counts[c] > 0:
                 total += cov[c] / counts[c]
         out[k] = total / n_cams if n_cams else 1.0
+
+
+def warm_up() -> None:
+    """Compile the kernel (or load it from numba's cache) before the first frame: one
+    particle against one empty camera."""
+    from app.pose.flesh import PARTS, build_flesh
+    from app.pose.likelihood import kernel_lut
+    from app.pose.model import neutral_state
+
+    person = PersonSilhouettes(np.zeros((1, 2, 2), np.uint8), np.zeros(1), np.zeros((1, 5)), np.zeros((1, 3, 3)),
+                               np.zeros((1, 3)))
+    silhouette_coverage(neutral_state(1.75)[None], 1.75, kernel_lut(build_flesh(1.75, 0.08, 1.0)),
+                        np.ones(len(PARTS), bool), person, np.zeros((1, 2, 2), np.int64), 1)
