@@ -470,6 +470,94 @@ def hull_losses(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), warmup: i
     return rows
 
 
+def one_miss_bound(r, carved: np.ndarray, truth: np.ndarray) -> dict:
+    """What the best possible selection among the voxels one camera misses keeps of one
+    frame (issue 8; evaluation only, it reads the truth). ``r`` a
+    :class:`~app.reconstruction.Reconstructor` carved at ``tolerance = 1`` whose last
+    carved frame gave ``carved``; ``truth`` the true body voxels (N, 3).
+
+    The bound keeps every voxel no camera misses (``k = 0``), exactly the body among
+    the voxels one camera misses (a per-frame oracle: no learnt occlusion, colour test or
+    other rule that works on the one-miss voxels can keep more body with less), and then
+    only the connected components that hold body (a perfect ghost filter). Its recall is
+    the ``k = 1`` hull's; its volume is the least any such selection needs for it.
+    Returns voxel counts: ``true``, ``k0`` / ``k0_body``, ``k1`` / ``k1_body``,
+    ``bound`` / ``bound_body``."""
+    from app.components import label_voxels
+
+    dims = np.asarray(r.grid.dims, dtype=np.int64)
+
+    def flat(a):
+        a = np.asarray(a, dtype=np.int64).reshape(-1, 3)
+        return (a[:, 0] * dims[1] + a[:, 1]) * dims[2] + a[:, 2]
+    body = np.isin(flat(carved), flat(truth))
+    misses = r.misses_of(carved)
+    agreed = misses == 0
+    keep = agreed | ((misses == 1) & body)
+    kept = carved[keep]
+    labels, count = label_voxels(kept, r.grid.dims)
+    has_body = np.zeros(count, dtype=np.bool_)
+    has_body[labels[body[keep]]] = True
+    whole = has_body[labels]
+    return {"true": len(truth), "k0": int(agreed.sum()), "k0_body": int((agreed & body).sum()),
+            "k1": len(carved), "k1_body": int(body.sum()),
+            "bound": int(whole.sum()), "bound_body": int(body[keep][whole].sum())}
+
+
+def hull_bounds(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), warmup: int = 10, min_top: float = 0.25,
+                footprints=(0.0, 0.34), truth: bool = True, verbose: bool = True) -> list[dict]:
+    """Issue 8's target against the best any selection of one-miss voxels can do
+    (:func:`one_miss_bound`): per voxel size, mask source (MOG2 at the matched scale,
+    the true silhouettes) and edge test (``footprint``), recall and volume of ``k = 0``,
+    of ``k = 1`` and of the bound, summed over the frames after ``warmup``."""
+    from app.reconstruction import Reconstructor
+    from app.recording import Recording
+    from app.segmentation import matched_scale
+    from app.simulation.occupancy import load_bodies, true_occupancy
+
+    calib = Recording(recording).calibration
+    bodies = {r["frame"]: r for r in load_bodies(recording)}
+    rows = []
+    for vs in voxel_sizes:
+        scale = matched_scale(calib, vs)
+        _, segmented, _, indices = segment_frames(recording, frames, scale)
+        sources = [("mog2", [m for m, _ in segmented])]
+        if truth:
+            sources.append(("true", true_silhouettes(recording, len(indices), scale)))
+        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        for source, masks_list in sources:
+            for footprint in footprints:
+                r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", min_top=min_top, tolerance=1,
+                                  footprint=footprint)
+                total = {}
+                for n, (masks, i) in enumerate(zip(masks_list, indices)):
+                    carved = r.carve(masks)
+                    if n < warmup:
+                        continue
+                    counts = one_miss_bound(r, carved, true_occupancy(bodies[i], r.grid.origin, vs, r.grid.dims))
+                    total = {k: total.get(k, 0) + v for k, v in counts.items()}
+                body = max(total.get("true", 0), 1)
+                row = {"voxel_size": vs, "mask_scale": scale, "masks": source, "footprint": footprint}
+                for name in ("k0", "k1", "bound"):
+                    row[name] = {"recall": total.get(name + "_body", 0) / body, "volume_ratio": total.get(name, 0) / body}
+                rows.append(row)
+                if verbose:
+                    print(format_bounds_row(row), flush=True)
+    return rows
+
+
+BOUNDS_HEADER = (f"{'voxel':>5} {'mask':>5} {'masks':<5} {'edge':>4}  {'k=0 recall / volume':>19}  "
+                 f"{'k=1 recall / volume':>19}  {'bound recall / volume':>21}  target")
+
+
+def format_bounds_row(r: dict) -> str:
+    b = r["bound"]
+    ok = b["recall"] >= HULL_TARGET["recall"] and b["volume_ratio"] <= HULL_TARGET["volume_ratio"]
+    cells = "  ".join(f"{r[k]['recall']:>9.3f} / {r[k]['volume_ratio']:5.2f}x" for k in ("k0", "k1"))
+    return (f"{r['voxel_size'] * 100:4.0f}cm {'1/' + str(r['mask_scale']):>5} {r['masks']:<5} {r['footprint']:4.2f}  "
+            f"{cells}  {b['recall']:>11.3f} / {b['volume_ratio']:5.2f}x  {'within reach' if ok else 'out of reach'}")
+
+
 LOSSES_HEADER = (f"{'voxel':>5} {'mask':>5} {'masks':<5} {'body lost':>9} {'edge only':>9} {'1 hidden':>8} "
                  f"{'2+ hidden':>9}  cameras missing a lost voxel (1/2/3/4+)")
 

@@ -49,6 +49,10 @@ def add_arguments(p) -> None:
     p.add_argument("--hull-losses", action="store_true",
                    help="reconstruction: what k=0 loses of the body and why (edge or hidden misses per camera; "
                         "MOG2 and true silhouettes) on a simulated recording")
+    p.add_argument("--hull-bounds", action="store_true",
+                   help="reconstruction: issue 8's target against the best any selection of the voxels one camera "
+                        "misses can do (an oracle that reads the truth; k=0, k=1, with and without the edge test; "
+                        "MOG2 and true silhouettes) on a simulated recording")
     p.add_argument("--speed", action="store_true",
                    help="reconstruction: only issue 8's speed rows (segmentation + reconstruction + colour per frame "
                         "on one core for today's method, learnt occluders and the fused method) at the first voxel size")
@@ -133,6 +137,10 @@ def _reconstruction(args, out: Path) -> dict:
         print(reconstruction.LOSSES_HEADER)
         rows = reconstruction.hull_losses(run.recording, frames=frames + 10, voxel_sizes=sizes)
         return {"recording": run.recording, "frames": frames, "hull_losses": rows}
+    if args.hull_bounds:
+        print(reconstruction.BOUNDS_HEADER)
+        rows = reconstruction.hull_bounds(run.recording, frames=frames + 10, voxel_sizes=sizes, min_top=args.min_top)
+        return {"recording": run.recording, "frames": frames, "hull_bounds": rows}
     if args.hull:
         rows = reconstruction.hull_table(run.recording, frames=frames + 10, voxel_sizes=sizes, min_top=args.min_top,
                                          verbose=False)

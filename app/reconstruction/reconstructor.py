@@ -483,7 +483,7 @@ class Reconstructor:
         else:
             indices = self._indices(self._carve_keys(cams))
             tm = time.perf_counter()
-            misses = self._count_misses(indices) if self.count_misses else None   # before occluders learn
+            misses = self.misses_of(indices) if self.count_misses else None   # before occluders learn
             tm = time.perf_counter() - tm
         self._after_carving(cams)
         t1 = time.perf_counter()
@@ -511,8 +511,9 @@ class Reconstructor:
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return indices, colours, surface, timings
 
-    def _count_misses(self, indices: np.ndarray) -> np.ndarray:
-        """Cameras calling each voxel background, as the final carving level reads them."""
+    def misses_of(self, indices: np.ndarray) -> np.ndarray:
+        """(N,) uint8: the cameras calling each voxel of ``indices`` background in the last
+        carved frame, as the final carving level reads them."""
         occ = self.occluders
         if occ is None:
             return count_misses(indices, self.layout, self.table.lut, self._votes)
