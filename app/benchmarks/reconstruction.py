@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -223,6 +224,32 @@ def true_silhouettes(recording, frames: int, scale: int) -> list[dict]:
     return out
 
 
+class HullInput(NamedTuple):
+    """The masks the hull benchmarks carve at one voxel size: the matched mask scale,
+    the segmented frames (masks, colour images), segmentation ms per frame, frame
+    indices, ``[(source, masks per frame)]`` (``mog2`` and, with ``truth``, ``true``) and
+    the mask sizes per camera."""
+    scale: int
+    segmented: list
+    seg_ms: np.ndarray
+    indices: list
+    sources: list
+    sizes: dict
+
+
+def hull_input(recording, calib, frames: int, voxel_size: float, truth: bool = True) -> HullInput:
+    """:class:`HullInput` of the first ``frames`` frames of a simulated recording."""
+    from app.segmentation import matched_scale
+
+    scale = matched_scale(calib, voxel_size)
+    _, segmented, seg_ms, indices = segment_frames(recording, frames, scale)
+    sources = [("mog2", [m for m, _ in segmented])]
+    if truth:
+        sources.append(("true", true_silhouettes(recording, len(indices), scale)))
+    sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+    return HullInput(scale, segmented, seg_ms, indices, sources, sizes)
+
+
 def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: int = 10, min_top: float = 0.25,
                variants=HULL_VARIANTS, truth: bool = True, verbose: bool = True) -> list[dict]:
     """Issue 8's before/after table: for every voxel size, carving variant and mask
@@ -236,19 +263,13 @@ def hull_table(recording, frames: int = 250, voxel_sizes=(0.02, 0.04), warmup: i
     from app.evaluation.reconstruction import score_frame, summarise_scores
     from app.reconstruction import Reconstructor
     from app.recording import Recording
-    from app.segmentation import matched_scale
     from app.simulation.occupancy import load_bodies, true_occupancy
 
     calib = Recording(recording).calibration
     bodies = {r["frame"]: r for r in load_bodies(recording)}
     rows = []
     for vs in voxel_sizes:
-        scale = matched_scale(calib, vs)
-        _, segmented, seg_ms, indices = segment_frames(recording, frames, scale)
-        sources = [("mog2", [m for m, _ in segmented])]
-        if truth:
-            sources.append(("true", true_silhouettes(recording, len(indices), scale)))
-        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        scale, segmented, seg_ms, indices, sources, sizes = hull_input(recording, calib, frames, vs, truth)
         truths = {}
         for name, options in variants:
             runs = sources
@@ -413,17 +434,13 @@ def hull_losses(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), warmup: i
 
     from app.reconstruction import Reconstructor
     from app.recording import Recording
-    from app.segmentation import matched_scale
     from app.simulation.occupancy import load_bodies, true_occupancy
 
     calib = Recording(recording).calibration
     bodies = {r["frame"]: r for r in load_bodies(recording)}
     rows = []
     for vs in voxel_sizes:
-        scale = matched_scale(calib, vs)
-        _, segmented, _, indices = segment_frames(recording, frames, scale)
-        sources = (("mog2", [m for m, _ in segmented]), ("true", true_silhouettes(recording, len(indices), scale)))
-        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        scale, _, _, indices, sources, sizes = hull_input(recording, calib, frames, vs)
         for source, masks_list in sources:
             r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", tolerance=0)
             body = lost = 0
@@ -512,19 +529,13 @@ def hull_bounds(recording, frames: int = 70, voxel_sizes=(0.02, 0.04), warmup: i
     of ``k = 1`` and of the bound, summed over the frames after ``warmup``."""
     from app.reconstruction import Reconstructor
     from app.recording import Recording
-    from app.segmentation import matched_scale
     from app.simulation.occupancy import load_bodies, true_occupancy
 
     calib = Recording(recording).calibration
     bodies = {r["frame"]: r for r in load_bodies(recording)}
     rows = []
     for vs in voxel_sizes:
-        scale = matched_scale(calib, vs)
-        _, segmented, _, indices = segment_frames(recording, frames, scale)
-        sources = [("mog2", [m for m, _ in segmented])]
-        if truth:
-            sources.append(("true", true_silhouettes(recording, len(indices), scale)))
-        sizes = {c: m.shape[::-1] for c, m in segmented[0][0].items()}
+        scale, _, _, indices, sources, sizes = hull_input(recording, calib, frames, vs, truth)
         for source, masks_list in sources:
             for footprint in footprints:
                 r = Reconstructor(calib, vs, mask_sizes=sizes, colouring="none", min_top=min_top, tolerance=1,
