@@ -91,6 +91,11 @@ def shrink(image: np.ndarray, scale: int) -> np.ndarray:
     return image
 
 
+#: the factor by which the reconstruction reduces the masks it sends with the voxels (its
+#: ``silhouettes`` parameter's default; the pose stage's silhouette term)
+SILHOUETTE_FACTOR = 2
+
+
 def reduce_mask(mask: np.ndarray, factor: int) -> np.ndarray:
     """A boolean mask reduced by an integer ``factor`` (a pixel is foreground when at least
     half of what it covers is); as is for a factor of 1."""

@@ -136,8 +136,7 @@ class Pose(Worker):
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
         self.share = share
         # the silhouette term projects the model into the cameras the voxels were carved from
-        calib = self.run_calibration() if self.settings.silhouette > 0 else None
-        self.cameras_by_name = {c.name: c for c in calib.cameras} if calib is not None else None
+        self.calibration = self.run_calibration() if self.settings.silhouette > 0 else None
         self.silhouette_frames = [0, 0]   # frames posed with silhouettes, frames posed
         self.estimator = None
         self.grid = None
@@ -283,7 +282,7 @@ class Pose(Worker):
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
         result, kept, no_silhouettes = pose_frame(self._estimator(vox), vox, ids, positions, self.params,
-                                                  only=only, cameras=self.cameras_by_name)
+                                                  only=only, calibration=self.calibration)
         if self.settings.silhouette > 0:
             self._count_silhouettes(vox.frame, no_silhouettes)
         if kept is not None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import Mask, Voxels
-from app.segmentation import reduce_mask, working_size
+from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
 from workers.base import Worker
 
 MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
@@ -65,9 +65,9 @@ class Reconstruction(Worker):
                                      # covers, in every camera, under this; app/reconstruction/ghosts.py); 0 = keep all
         "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
                                      # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
-        "silhouettes": 2,            # the frame's masks go with the voxels, reduced by this factor (the pose stage's
-                                     # silhouette term, app.pose.silhouette; 160x120 at 2 cm, 80x60 at 4 cm from
-                                     # 640x480 cameras: 2.4 / 0.6 kB a camera); 0 = not sent
+        "silhouettes": SILHOUETTE_FACTOR,  # 2: the frame's masks go with the voxels, reduced by this factor (the
+                                     # pose stage's silhouette term, app.pose.silhouette; 160x120 at 2 cm, 80x60 at
+                                     # 4 cm from 640x480 cameras: 2.4 / 0.6 kB a camera); 0 = not sent
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),

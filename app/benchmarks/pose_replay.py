@@ -83,7 +83,7 @@ def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, 
         raise InputError(f"{recording}: no ground truth for frame {missing[0]} of {path} (another recording?)")
     tracks = _tracks(msgs)
     from calibration import load_calibration
-    cameras = {c.name: c for c in load_calibration(recording / "calibration.yaml").cameras}
+    calibration = load_calibration(recording / "calibration.yaml")
     if verbose and float(params.get("silhouette", 0)) > 0 and not any(m.silhouette_sizes for m in msgs):
         print(f"{path}: the voxels carry no silhouettes (a run of an older build, or reconstruction.silhouettes=0): "
               "posed without the silhouette term", flush=True)
@@ -104,7 +104,7 @@ def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, 
         t0 = time.process_time()
         for m in msgs:
             ids, positions = tracks.get(m.frame, empty)
-            result = pose_frame(est, m, ids, positions, params, cameras=cameras).result
+            result = pose_frame(est, m, ids, positions, params, calibration=calibration).result
             people, visible = truth[m.frame]
             scored.append((people, {t: r[0] for t, r in result.items()}, visible))
         cpu = (time.process_time() - t0) / len(msgs) * 1e3

@@ -18,12 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.evaluation.pose import ground_truth_poses
 from app.messages import JOINTS
 from app.pose.estimator import PoseEstimator, PoseSettings
-from app.segmentation import reduce_mask
-
-#: the reconstruction worker's default ``silhouettes`` factor
-SILHOUETTE_FACTOR = 2
+from app.segmentation import SILHOUETTE_FACTOR, reduce_mask
 
 __all__ = ["ClipFrame", "simulated_clip", "run_clip"]
 
@@ -84,6 +82,7 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
         flags = None
         if source == "true":
             idx = true_occupancy(sim.body_record(i, people), cal.room_min, voxel_size, dims)
+            silhouettes = None     # true body voxels: no masks were carved
         else:
             import cv2
             images, labels, _ = sim.render_people(i, people, noise=source == "mog2")
@@ -100,19 +99,17 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             silhouettes = [reduce_mask(masks[c], SILHOUETTE_FACTOR) for c in sim.cameras]
             flags = flags if surface and len(flags) == len(idx) else None
         surface_flags = flags
-        if source == "true":
-            silhouettes = None
         centres = np.asarray(cal.room_min) + (idx + 0.5) * voxel_size
         if hide is not None:
             keep = hide(i, centres)
             centres = centres[keep]
             surface_flags = None if surface_flags is None else np.asarray(surface_flags)[keep]
         ids = [p["id"] for p in gt["people"]]
+        truth, visible = ground_truth_poses([gt])[i]
         out.append(ClipFrame(
             frame=i, centres=centres, surface=surface_flags, ids=ids,
             positions=np.array([p["centroid"] for p in gt["people"]], dtype=float).reshape(-1, 3),
-            truth={p["id"]: np.array([p["joints"][n] for n in JOINTS]) for p in gt["people"]},
-            visible={p["id"]: np.array([p.get("visible", {}).get(n, True) for n in JOINTS]) for p in gt["people"]},
+            truth=truth, visible=visible,
             silhouettes=silhouettes, cameras=None if silhouettes is None else list(sim.cameras)))
     return out, cal
 
@@ -125,14 +122,13 @@ def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None, calibr
     > 0 the frames' silhouettes are scored too (:mod:`app.pose.silhouette`)."""
     from app.pose.selection import silhouette_view
 
-    cameras = {c.name: c for c in calibration.cameras} if calibration is not None else None
     est = PoseEstimator(settings)
     estimates, active, ms, cpu_ms = [], [], [], []
     for fr in clip:
         if corrupt is not None:
             corrupt(fr.frame, est)
         t0, c0 = time.perf_counter(), time.thread_time()
-        view, _ = silhouette_view(fr.silhouettes or [], fr.cameras or [], cameras, settings)
+        view, _ = silhouette_view(fr.silhouettes or [], fr.cameras or [], calibration, settings)
         res = est.update(fr.centres, fr.surface, fr.ids, fr.positions, view=view)
         ms.append(1e3 * (time.perf_counter() - t0))
         cpu_ms.append(1e3 * (time.thread_time() - c0))

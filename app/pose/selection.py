@@ -66,29 +66,29 @@ class PosedFrame(NamedTuple):
     no_silhouettes: str | None  # why the silhouette term was off although asked for, or None
 
 
-def silhouette_view(masks: list, names: list, cameras: dict | None, settings):
+def silhouette_view(masks: list, names: list, calibration, settings):
     """``(view, why not)``: the frame's :class:`~app.pose.silhouette.SilhouetteView` of the
-    silhouettes ``masks`` of cameras ``names`` (``cameras``: the calibration's by name), or
-    None and why (None when the term is off)."""
+    silhouettes ``masks`` of cameras ``names`` (the run's
+    :class:`~calibration.Calibration`), or None and why (None when the term is off)."""
     if settings.silhouette <= 0:
         return None, None
-    if not cameras:
+    if calibration is None:
         return None, "no calibration (the recording's, or --calibration)"
     if not masks:
         return None, "the voxels carry no silhouettes (reconstruction.silhouettes = 0, or an older reconstruction)"
-    unknown = [n for n in names if n not in cameras]
+    unknown = [n for n in names if n not in calibration.names]
     if unknown:
         return None, f"camera {unknown[0]} is not in the calibration"
     from app.pose.silhouette import SilhouetteView
-    return SilhouetteView(masks, [cameras[n] for n in names], reach=settings.silhouette_reach), None
+    return SilhouetteView(masks, [calibration.camera(n) for n in names], reach=settings.silhouette_reach), None
 
 
 def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None,
-               cameras: dict | None = None) -> PosedFrame:
+               calibration=None) -> PosedFrame:
     """One frame through a :class:`~app.pose.estimator.PoseEstimator` as the pose worker
     poses it: the voxel subset of ``params`` (the worker's ``voxels``, ``tolerant_*``), its
     surface recomputed where a subset is taken, the silhouettes the voxels carry
-    (``cameras``: the calibration's cameras by name; :func:`silhouette_view`). ``vox``: a
+    (with the run's ``calibration``; :func:`silhouette_view`). ``vox``: a
     :class:`~app.messages.Voxels`."""
     centres = vox.centres()
     surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
@@ -100,5 +100,5 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
         centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
         kept = float(keep.mean())
     masks = vox.silhouette_masks() if estimator.settings.silhouette > 0 else []
-    view, why = silhouette_view(masks, vox.cameras, cameras, estimator.settings)
+    view, why = silhouette_view(masks, vox.cameras, calibration, estimator.settings)
     return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view), kept, why)
