@@ -1,11 +1,17 @@
 """The zenoh bus: opening a session and every key expression the pipeline uses.
 
 Keys are ``smartroom/<room>/<stage>/...``; they are built here and nowhere else.
-Sessions are zenoh peers. By default they talk over loopback TCP without multicast
-scouting: the launcher listens on one endpoint, every worker connects to it and
-listens on a free port of its own; zenoh's gossip then links the peers directly, so
-the pipeline keeps running if the launcher goes away. Zenoh moves large payloads
-between processes of one host through its shared-memory transport by itself.
+The bus is a star: the launcher's session is a zenoh router (the hub) that listens on
+the layout's endpoints (loopback TCP by default, no multicast scouting), and every
+worker, on this host or another, is a zenoh client of it. The hub routes every message
+and every declaration (subscriptions, liveliness), so a worker that joins late, from
+another host or over TLS, reaches every other worker through the one link it opened.
+A mesh of peers linked by zenoh's gossip (the bus before) lost messages for good when
+one of its N^2 links failed to form (zenoh 1.10 makes one attempt per gossip and its
+peers do not relay): under load about one run in ten had a pair of workers that never
+heard each other. Zenoh moves large payloads between processes of one host through its
+shared-memory transport, through the hub too; a client whose link to the hub breaks
+reconnects by itself.
 """
 from __future__ import annotations
 
@@ -23,6 +29,8 @@ from app.messages import Message, MessageError, decode
 
 __all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "MessageError"]
 
+CLIENT_CONNECT_S = 30.0   # a worker waits this long for the hub when its session opens
+
 
 @dataclass
 class BusConfig:
@@ -37,11 +45,15 @@ class BusConfig:
     tls: TlsConfig | None = None
     auth: AuthConfig | None = None
 
-    def to_zenoh(self) -> zenoh.Config:
+    def to_zenoh(self, mode: str = "peer") -> zenoh.Config:
+        """zenoh's configuration of a session in ``mode``: ``router`` (the hub), ``client``
+        (a worker) or ``peer`` (a probe or benchmark on its own)."""
         conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("mode", json.dumps(mode))
         conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        if mode == "client":   # wait for the hub a while instead of failing at once (it may start later)
+            conf.insert_json5("connect/timeout_ms", json.dumps(int(CLIENT_CONNECT_S * 1000)))
         conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
         conf.insert_json5("transport/shared_memory/enabled", "true" if self.shm else "false")
         if self.tls is not None:
@@ -51,10 +63,10 @@ class BusConfig:
         return conf
 
     def for_worker(self) -> "BusConfig":
-        """A worker connects to what the hub listens on and listens on a free loopback
-        port (over TLS, with the same certificate and credentials, when the bus uses it)."""
-        listen = ("tls" if self.tls is not None else "tcp") + "/127.0.0.1:0"
-        return replace(self, listen=[listen], connect=list(self.connect or self.listen))
+        """A worker is a client of the hub: it connects to what the hub listens on (over
+        TLS, with the same certificate and credentials, when the bus uses it) and listens
+        on nothing; open it with ``open_session(bus, mode="client")``."""
+        return replace(self, listen=[], connect=list(self.connect or self.listen))
 
 
 def free_port() -> int:
@@ -64,12 +76,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def open_session(bus: BusConfig) -> zenoh.Session:
-    """Open a zenoh session; a bad endpoint (syntax, a host that does not resolve, an
-    address that cannot be bound) is an :class:`InputError` of one line, not a zenoh error."""
+def open_session(bus: BusConfig, mode: str = "peer") -> zenoh.Session:
+    """Open a zenoh session (``mode``: see :meth:`BusConfig.to_zenoh`); a bad endpoint
+    (syntax, a host that does not resolve, an address that cannot be bound, a hub that
+    cannot be reached) is an :class:`InputError` of one line, not a zenoh error."""
     check_endpoints(bus.listen, bus.connect, bus.tls, resolve=True)
     try:
-        return zenoh.open(bus.to_zenoh())
+        return zenoh.open(bus.to_zenoh(mode))
     except zenoh.ZError as exc:
         # zenoh appends " at /path/file.rs:NN." to each cause: keep the words, drop the places
         reason = re.sub(r"\s+at /\S+?\.rs:\d+\.?", "", " ".join(str(exc).split())) or type(exc).__name__

@@ -201,7 +201,7 @@ class Launcher:
     # -- the run ------------------------------------------------------------------
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
-        session = self._session = open_session(self.hub_bus)
+        session = self._session = open_session(self.hub_bus, mode="router")
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
         subs = [session.declare_subscriber(keys.stats(), self._on_control),

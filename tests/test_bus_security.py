@@ -44,11 +44,12 @@ def _tls(folder: Path, host: str, ca: Path | None = None, **kw) -> TlsConfig:
                      key=str(folder / f"{host}.key"), **kw)
 
 
-def _delivered(hub, client_bus: BusConfig, wait: float) -> bool:
-    """Does a put from a session opened with ``client_bus`` reach ``hub`` within ``wait``?"""
+def _delivered(hub, client_bus: BusConfig, wait: float, mode: str = "peer") -> bool:
+    """Does a put from a session opened with ``client_bus`` (as a zenoh ``mode``) reach
+    ``hub`` within ``wait``? (An intruder opens a peer: it does not wait for the hub.)"""
     got = threading.Event()
     sub = hub.declare_subscriber(KEY, lambda sample: got.set())
-    client = open_session(client_bus)
+    client = open_session(client_bus, mode)
     try:
         deadline = time.monotonic() + wait
         while not got.is_set() and time.monotonic() < deadline:
@@ -63,12 +64,12 @@ def _delivered(hub, client_bus: BusConfig, wait: float) -> bool:
 def test_mutual_tls_admits_the_rooms_certificate_and_refuses_another(certs):
     room, other = certs / "room", certs / "other"
     hub_bus = BusConfig(listen=[f"tls/127.0.0.1:{free_port()}"], tls=_tls(room, "hub"))
-    hub = open_session(hub_bus)
+    hub = open_session(hub_bus, mode="router")
     try:
-        # a worker of the room, as the launcher starts it: listens on tls/127.0.0.1:0
+        # a worker of the room, as the launcher starts it: a client of the hub, listening nowhere
         cam = dataclasses.replace(hub_bus.for_worker(), tls=_tls(room, "cam"))
-        assert cam.listen == ["tls/127.0.0.1:0"] and cam.connect == hub_bus.listen
-        assert _delivered(hub, cam, ADMIT_WITHIN)
+        assert cam.listen == [] and cam.connect == hub_bus.listen
+        assert _delivered(hub, cam, ADMIT_WITHIN, mode="client")
         # another CA's certificate, trusting its own CA or (wrongly) the room's: refused
         assert not _delivered(hub, dataclasses.replace(cam, tls=_tls(other, "intruder")), REFUSE_FOR)
         assert not _delivered(hub, dataclasses.replace(cam, tls=_tls(other, "intruder", ca=room / "ca.pem")),
@@ -77,7 +78,7 @@ def test_mutual_tls_admits_the_rooms_certificate_and_refuses_another(certs):
         plain = BusConfig(connect=[hub_bus.listen[0].replace("tls/", "tcp/")])
         assert not _delivered(hub, plain, REFUSE_FOR)
         # and the room's host is still admitted afterwards
-        assert _delivered(hub, cam, ADMIT_WITHIN)
+        assert _delivered(hub, cam, ADMIT_WITHIN, mode="client")
     finally:
         hub.close()
 
@@ -93,10 +94,10 @@ def test_user_password_admits_the_right_password_and_refuses_others(tmp_path):
                           dictionary_file=str(users))
 
     hub_bus = BusConfig(listen=[f"tcp/127.0.0.1:{free_port()}"], auth=auth("hub", "hub"))
-    hub = open_session(hub_bus)
+    hub = open_session(hub_bus, mode="router")
     try:
         cam = hub_bus.for_worker()
-        assert _delivered(hub, dataclasses.replace(cam, auth=auth("cam", "cam")), ADMIT_WITHIN)
+        assert _delivered(hub, dataclasses.replace(cam, auth=auth("cam", "cam")), ADMIT_WITHIN, mode="client")
         assert not _delivered(hub, dataclasses.replace(cam, auth=auth("cam", "wrong")), REFUSE_FOR)
         assert not _delivered(hub, dataclasses.replace(cam, auth=None), REFUSE_FOR)
     finally:
@@ -141,9 +142,9 @@ def test_layout_tls_and_auth_paths_are_relative_to_the_layout_and_survive_the_re
     assert link["listen_private_key"] == link["connect_private_key"] == bus.tls.key
     assert json.loads(conf.get_json("transport/auth/usrpwd")) == {
         "user": "smartroom", "password": "s3cret", "dictionary_file": bus.auth.dictionary_file}
-    # workers get the same certificate and credentials, and listen over TLS on loopback
+    # workers get the same certificate and credentials, and connect to the hub (clients listen nowhere)
     worker = bus.for_worker()
-    assert worker.listen == ["tls/127.0.0.1:0"] and worker.tls == bus.tls and worker.auth == bus.auth
+    assert worker.listen == [] and worker.connect == bus.listen and worker.tls == bus.tls and worker.auth == bus.auth
     # the resolved layout written elsewhere (next to the results) names the same files
     out = room_files / "out"
     out.mkdir()
@@ -297,28 +298,30 @@ def test_a_run_over_mutual_tls_with_a_remote_worker_admits_it_and_not_an_intrude
 
 
 def test_a_publisher_waits_until_the_bus_routes_its_key_to_a_subscriber():
-    """A worker that joins a room through its hub (as from another host) learns of the
-    room's subscribers only after it connected; offline, its first message waits for that
-    (Publisher.await_subscriber) instead of going nowhere."""
+    """A worker learns of the room's subscribers only once the hub has told it of them
+    (a consumer that joins later, from another host); offline, its first message waits
+    for that (Publisher.await_subscriber) instead of going nowhere."""
     from app.bus import Publisher
     port = free_port()
-    hub = open_session(BusConfig(listen=[f"tcp/127.0.0.1:{port}"]))
+    hub_bus = BusConfig(listen=[f"tcp/127.0.0.1:{port}"])
+    hub = open_session(hub_bus, mode="router")
+    sender = open_session(hub_bus.for_worker(), mode="client")
     late = None
     try:
-        pub = Publisher(hub, "room/test/mask/cam0", droppable=False)
+        pub = Publisher(sender, "room/test/mask/cam0", droppable=False)
         t0 = time.monotonic()
         assert pub.await_subscriber(0.3) is False            # nobody there: it says so after the wait
         assert time.monotonic() - t0 >= 0.3
         got = []
-        late = open_session(BusConfig(connect=[f"tcp/127.0.0.1:{port}"]))
+        late = open_session(hub_bus.for_worker(), mode="client")
         late.declare_subscriber("room/test/mask/*", lambda s: got.append(s.payload.to_bytes()))
-        assert pub.await_subscriber(10.0) is True            # the subscriber's declaration reached the hub
+        assert pub.await_subscriber(10.0) is True            # the subscriber's declaration reached the sender
         pub.put_payload(b"first")
         deadline = time.monotonic() + 5
         while not got and time.monotonic() < deadline:
             time.sleep(0.01)
         assert got == [b"first"]
     finally:
-        if late is not None:
-            late.close()
-        hub.close()
+        for s in (late, sender, hub):
+            if s is not None:
+                s.close()

@@ -606,7 +606,7 @@ class Worker(Restarts):
         """Run the worker until its stream ends or it is told to stop; the exit code."""
         self._install_signals()
         self._watch_launcher()
-        self.session = open_session(self.layout.bus.for_worker())
+        self.session = open_session(self.layout.bus.for_worker(), mode="client")
         try:
             self._wait_for = set(self.upstream())
             self._seed_ended()

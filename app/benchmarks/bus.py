@@ -1,7 +1,9 @@
 """Benchmark of the message codec and zenoh between two processes.
 
-One process publishes 640x480x3 :class:`~app.messages.Frame` messages, a second one
-(started here) subscribes and decodes them. Reported:
+The path of a pipeline's messages: a publishing worker, the hub, a subscribing worker.
+This process opens the hub (a zenoh router, as the launcher does) and a client session
+of it that publishes 640x480x3 :class:`~app.messages.Frame` messages; a second process
+(started here) subscribes as a client, as a worker does, and decodes them. Reported:
 
 - codec: encode and decode time of one frame (in-process, median);
 - latency: one-way, from just before encoding to just after decoding, with frames
@@ -30,7 +32,7 @@ THROUGHPUT_BASE = 1_000_000
 
 def _subscriber(endpoint: str, room: str, latency_n: int, throughput_n: int, shm: bool, timeout: float) -> dict:
     keys = Keys(room)
-    session = open_session(BusConfig(listen=["tcp/127.0.0.1:0"], connect=[endpoint], shm=shm))
+    session = open_session(BusConfig(listen=[], connect=[endpoint], shm=shm), mode="client")
     lat, thr = [], []
 
     def on_sample(sample):
@@ -59,7 +61,9 @@ def run(frames: int = 300, throughput_frames: int = 500, shape=(480, 640, 3), sh
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys(room)
-    session = open_session(BusConfig(listen=[endpoint], shm=shm))
+    hub_bus = BusConfig(listen=[endpoint], shm=shm)
+    hub = open_session(hub_bus, mode="router")
+    session = open_session(hub_bus.for_worker(), mode="client")
     child = subprocess.Popen(
         [sys.executable, "-m", "app.benchmarks.bus", "--subscriber", endpoint, "--room", room,
          "--frames", str(frames), "--throughput-frames", str(throughput_frames)] + ([] if shm else ["--no-shm"]),
@@ -98,6 +102,7 @@ def run(frames: int = 300, throughput_frames: int = 500, shape=(480, 640, 3), sh
         if child.poll() is None:
             child.kill()
         session.close()
+        hub.close()
     res = json.loads(out.strip().splitlines()[-1])
     lat = np.asarray(res["latency_ms"])
     thr = np.asarray(res["throughput_times"])
@@ -117,7 +122,7 @@ def run(frames: int = 300, throughput_frames: int = 500, shape=(480, 640, 3), sh
 def table(results: list[dict]) -> str:
     head = f"{'shm':<5}{'encode':>9}{'decode':>9}{'lat p50':>9}{'lat p95':>9}{'recv fps':>10}{'MB/s':>8}{'recv/sent':>12}"
     lines = [f"codec + zenoh, one {results[0]['shape'][1]}x{results[0]['shape'][0]}x{results[0]['shape'][2]} frame "
-             f"({results[0]['frame_mb']} MB) between two processes", head]
+             f"({results[0]['frame_mb']} MB) between two workers through the hub", head]
     for r in results:
         lines.append(f"{'on' if r['shm'] else 'off':<5}{r['encode_ms_p50']:>7.2f}ms{r['decode_ms_p50']:>7.3f}ms"
                      f"{r['latency_ms_p50']:>7.2f}ms{r['latency_ms_p95']:>7.2f}ms{r['throughput_fps']:>10.1f}"
