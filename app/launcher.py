@@ -9,6 +9,9 @@ the workers' stats, keeps ``<out>/stats.json`` up to date, and waits:
 - exit 0: the worker's input ended and it sent its end of stream;
 - exit 2: bad input (its one-line reason is in ``<out>/logs/<name>.error``): the run
   cannot go on; the other workers are stopped and the launcher exits 2 with that reason;
+- exit 3: a stall (offline, a stage that finishes nothing: :mod:`workers.flow`, the
+  reason in the same file): the other workers are stopped, the run is incomplete (exit 1)
+  and its files hold every frame up to there;
 - anything else (a crash, SIGKILL, SIGTERM from outside): the worker is restarted
   after a back-off (0.25 s doubling per recent crash, at most 8 s). A stage crashing
   :attr:`RestartPolicy.storm` times within :attr:`RestartPolicy.window_s` is a storm:
@@ -46,6 +49,7 @@ from app.config import Layout
 from app.files import write_json
 from app.messages import EndOfStream, MessageError, Stats
 from app.stats import summarise
+from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
 
@@ -144,8 +148,6 @@ class Launcher:
 
     # -- processes ----------------------------------------------------------------
     def _spawn(self, p: _Proc) -> None:
-        from workers.base import ENDED_ENV, LAUNCHER_PID_ENV
-
         cmd = [sys.executable, "-m", "app.cli", "worker", p.name, "--layout", str(self.layout_path)]
         if self.verbose:
             cmd.append("--verbose")
@@ -271,9 +273,15 @@ class Launcher:
                 p.rc = rc
                 if rc == 0:
                     p.done = p.ended = True
-                elif rc == 2:
+                elif rc == EXIT_INPUT:
                     p.done = True
                     self.input_error = self.input_error or self._error_line(p.name)
+                    self.request_stop(hard=True, user=False)
+                elif rc == EXIT_STALLED:   # offline, the run cannot go on: stop it, say why
+                    p.done = True
+                    reason = f"{p.name}: {self._error_line(p.name)}"
+                    self.reasons.append(reason)
+                    print(f"smartroom: {reason}; stopping", file=sys.stderr)
                     self.request_stop(hard=True, user=False)
                 elif self._stop_level >= 2:
                     p.done = True

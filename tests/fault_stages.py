@@ -55,3 +55,15 @@ class SlowSetupStage(Worker):
 
     def handle(self, key, msg):
         self.publish(self.keys.stage("slowsetup"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))
+
+
+class MuteSegmentation(Segmentation):
+    """A segmentation worker that comes on the bus, takes frames in and never finishes one
+    (a camera host whose stage hangs, or whose masks go nowhere)."""
+
+    ACK_ON_HANDLE = False
+
+    def handle(self, key, msg):
+        if not getattr(self, "_said", False):
+            self._said = True
+            self.log.warning("mute: took frame %d in", msg.frame)

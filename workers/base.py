@@ -50,7 +50,7 @@ from workers.restarts import Restarts
 if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
     from app.config import Layout, WorkerSpec
 
-__all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
+__all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
 STATE_PERIOD_S = 0.5
@@ -63,6 +63,7 @@ SUBSCRIBER_WAIT_S = 5.0  # offline: a new publisher waits at most this long for 
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent
 EXIT_INPUT = 2           # bad input: a one-line reason in <out>/logs/<name>.error
+EXIT_STALLED = 3         # offline, the run cannot go on (app.errors.Stalled): the reason in <out>/logs/<name>.error
 EXIT_TERMINATED = 143    # stopped before its input ended (SIGTERM, launcher gone): restartable
 ENDED_ENV = "SMARTROOM_ENDED"              # the launcher's list of workers already ended
 LAUNCHER_PID_ENV = "SMARTROOM_LAUNCHER_PID"

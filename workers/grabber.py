@@ -5,30 +5,23 @@ Reads a recording folder as if live, or live cameras through ``cv2.VideoCapture`
 Before the first frame it waits until every worker of the layout is alive, so no
 stage misses the start of the stream.
 
-Offline (a recording) the grabber never runs ahead of the pipeline: it holds frame
-``i`` until every stage that is alive has put out frame ``i - window`` (paced runs
-also keep the recording's clock), so no stage ever drops a frame and the results do
-not depend on machine load. A stage that has left the bus (crashed) is not waited
-for until it is back. A restarted grabber carries on after the last frame it sent,
-in a new epoch. Live cameras are paced by the cameras themselves.
+Offline (a recording) the grabber never runs ahead of the pipeline: the spine's flow
+control (:mod:`workers.flow`) holds frame ``i`` until every stage has finished frame
+``i - window`` and ends a stalled run with a reason; paced runs also keep the
+recording's clock. A restarted grabber carries on after the last frame it sent, in a
+new epoch. Live cameras are paced by the cameras themselves.
 """
 from __future__ import annotations
 
-import threading
 import time
 
-from app.admission import EPOCH_QUIET_S
 from app.errors import InputError
 from app.messages import Frame
 from app.recording import Recording
 from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
 from workers.base import Worker
-from workers.restarts import REPLAY_DELAY_S
-
-MISSING_WAIT_S = 60.0   # offline: how long a crashed stage is waited for before frames go on without it
-RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # offline: new frames wait this long after a worker is back from a crash
-AGAIN_QUIET_S = 4 * EPOCH_QUIET_S    # offline, restarted: the new epoch waits this long after the last frame sent again
+from workers.flow import AGAIN_QUIET_S, SourceFlow
 
 
 class Grabber(Worker):
@@ -41,6 +34,8 @@ class Grabber(Worker):
         "ready_timeout": 60.0,   # live: seconds to wait for the other workers before starting anyway (a recording
                                  # waits for all of them, saying so every this many seconds)
         "window": 2,             # offline: frames in flight beyond the slowest stage's last one
+        "stall_timeout_s": 120.0,  # offline: a frame held this long by a stage that finishes nothing (or a worker
+                                   # that never comes on the bus) ends the run with the reason (exit 1)
         "open_timeout": 10.0,    # live: seconds for a camera to deliver its first image
         "lost_timeout": 30.0,    # live: seconds with no camera delivering before the stream ends
         "skip_bad_frames": False,  # a recording's undecodable frames: stop with an error, or skip them
@@ -48,8 +43,8 @@ class Grabber(Worker):
         "catch_up_s": 1.0,       # paced recording: a lag up to this (warm-up, a hiccup) is caught up; longer moves the clock
     }
     RANGES = {"start": (0, 1 << 40), "ready_timeout": (0.0, 3600.0), "window": (1, 64),
-              "open_timeout": (0.5, 600.0), "lost_timeout": (0.5, 86400.0), "scale": (0, 16),
-              "catch_up_s": (0.0, 10.0)}
+              "stall_timeout_s": (1.0, 86400.0), "open_timeout": (0.5, 600.0), "lost_timeout": (0.5, 86400.0),
+              "scale": (0, 16), "catch_up_s": (0.0, 10.0)}
 
     def setup(self) -> None:
         run = self.layout.run
@@ -82,9 +77,8 @@ class Grabber(Worker):
             if resume >= total:
                 self.source = None   # everything was sent before the restart
         self._frames = None
-        self._acks: dict[str, int] = {}   # worker -> newest frame it finished
-        self._outs: dict[str, int] = {}   # worker -> newest frame it put out
-        self._ack_cond = threading.Condition()
+        self.flow = SourceFlow(self, self.params["window"], self.params["stall_timeout_s"],
+                               self.params["ready_timeout"]) if self.lossless else None
         self.t0 = None
 
     def _send_scale(self, calib) -> int:
@@ -155,17 +149,18 @@ class Grabber(Worker):
 
     # -- frames ------------------------------------------------------------------------
     def _wait_until_ready(self) -> None:
-        """Live: until every other worker is on the bus, at most ``ready_timeout``. On a
-        recording nothing may be sent past a stage (the results would depend on how fast
-        the machine loads it): until every worker is on the bus, said every ``ready_timeout``."""
-        timeout = self.params["ready_timeout"]
-        missing = self.wait_for_others(timeout)
-        while missing and self.lossless and not self.stopping:
-            self.log.warning("frame %d waits for %s to be on the bus (%s)", self.source.start,
-                             ", ".join(sorted(missing)), "still loading, or not started on its host")
-            missing = self.wait_for_others(max(timeout, 10.0))
+        """Until every other worker is on the bus: on a recording the flow control's rule
+        (nothing is sent past a stage that still loads; a stall ends the run), live at most
+        ``ready_timeout``, then without it."""
+        if self.flow is not None:
+            self._idle += self.flow.ready(self.source.start)
+            return
+        t0 = time.perf_counter()
+        missing = self.wait_for_others(self.params["ready_timeout"])
+        self._idle += time.perf_counter() - t0
         if missing:
-            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)), timeout)
+            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)),
+                             self.params["ready_timeout"])
 
     def produce(self) -> bool:
         if self.incarnation > 0 and self._out_epoch is not None and self.lossless and not self._sent_again:
@@ -177,15 +172,13 @@ class Grabber(Worker):
         if self._frames is None:
             self._frames = iter(self.source.frames())
             if self.incarnation == 0:
-                t0 = time.perf_counter()
                 self._wait_until_ready()
-                self._idle += time.perf_counter() - t0
         try:
             index, images = next(self._frames)
         except StopIteration:
             return False
-        if self.lossless:
-            self._wait_for_acks(index)
+        if self.flow is not None:
+            self._idle += self.flow.hold(index)
             if self.layout.run.pace:
                 self._pace(index)
         if self.stopping:
@@ -200,114 +193,6 @@ class Grabber(Worker):
         self.ledger.emitted(index, stamp)   # sent once every camera's image is: a restart sends it again
         self._out_epoch = self.epoch
         return True
-
-    def _filters(self) -> list[str]:
-        """The workers that acknowledge frames (the stages, and sinks that keep results)."""
-        from workers import worker_class
-        return [w.name for w in self.layout.workers
-                if w.name != self.name and worker_class(w.kind).acknowledges(w, self.layout)
-                and not (self.layout.run.headless and worker_class(w.kind).DISPLAY)]
-
-    def _upstream_stages(self) -> dict[str, list[str]]:
-        """For each acknowledging worker, the acknowledging stages it takes its input from."""
-        from workers import upstream_of
-        return {n: [u for u in upstream_of(self.layout, self.layout.worker(n)) if u in self._ack_names]
-                for n in self._ack_names}
-
-    def _required(self, name: str, need: int) -> int:
-        """The frame ``name`` must have finished: ``need``, or less when a stage before it
-        has put out nothing that recent (it gave those frames up, e.g. too few cameras)."""
-        for u in self._upstream.get(name, ()):
-            need = min(need, self._outs.get(u, -1))
-        return need
-
-    def _keepers_of_results(self) -> list[str]:
-        """Sinks that keep results: waited for (alive) while they restart, not acknowledged."""
-        from workers import worker_class
-        return [w.name for w in self.layout.workers
-                if worker_class(w.kind).KEEPS_RESULTS and w.name not in self._ack_names]
-
-    def _on_ack(self, sample) -> None:
-        from app.bus import decode_sample
-        from app.messages import Ack, MessageError
-        try:
-            msg = decode_sample(sample)
-            msg.validate()
-        except MessageError:
-            self.reject(str(sample.key_expr), "malformed")
-            return
-        if not isinstance(msg, Ack) or msg.worker not in self._ack_names or msg.epoch != self.epoch:
-            self.reject(str(sample.key_expr), "acknowledgement of another stream")
-            return
-        with self._ack_cond:
-            self._acks[msg.worker] = max(msg.frame, self._acks.get(msg.worker, -1))
-            self._outs[msg.worker] = max(msg.out, self._outs.get(msg.worker, -1))
-            self._ack_cond.notify_all()
-
-    def _wait_for_acks(self, index: int) -> None:
-        """Hold frame ``index`` until every acknowledging worker has finished frame
-        ``index - window``. A worker that has left the bus (crashed) is waited for while
-        the launcher restarts it (at most ``MISSING_WAIT_S``), so no frame goes past it
-        meanwhile; the frames that were in flight to it (its inbox, lost with it) are sent
-        to it again by the workers before it when it is back (``Worker._resend``), and the
-        stream waits for it to catch up on them as for any stage (at most ``MISSING_WAIT_S``
-        more, in case its upstream restarted with it and nothing comes again)."""
-        if not hasattr(self, "_ack_sub"):
-            self._ack_names = self._filters()
-            self._keepers = self._keepers_of_results()
-            self._ack_sub = self.session.declare_subscriber(self.keys.ack(), self._on_ack)
-            self._was_alive = set(self.alive)
-            # nothing of this epoch is in flight yet (frames an earlier incarnation sent were
-            # acknowledged in its epoch)
-            self._acks = {n: index - 1 for n in self._ack_names}
-            self._outs = {n: index - 1 for n in self._ack_names}
-            self._missing_since: dict[str, float] = {}
-            self._back_since: dict[str, float] = {}   # workers back from a crash, catching up
-            self._hold_until = 0.0
-            self._upstream = self._upstream_stages()
-        need = index - self.params["window"]
-        t0 = time.perf_counter()
-        next_note = time.monotonic() + 10.0
-        with self._ack_cond:
-            while not self.stopping:
-                alive = set(self.alive)
-                now = time.monotonic()
-                for n in alive - self._was_alive:
-                    self._back_since[n] = now   # back after a crash: catching up on what is sent again
-                    # hold new frames until the kept ones were sent again (``REPLAY_DELAY_S``):
-                    # a sink that keeps results acknowledges nothing, and would get them after
-                    # newer frames, or not at all once they had left the workers' replay buffers
-                    self._hold_until = max(self._hold_until, now + RESUME_HOLD_S)
-                self._was_alive = alive
-                for n, since in list(self._back_since.items()):
-                    if self._acks.get(n, -1) >= self._required(n, need):
-                        del self._back_since[n]
-                    elif now - since > MISSING_WAIT_S:
-                        # what it missed never came again (its upstream restarted with it):
-                        # go on from here; the frames it lacks are counted as missing
-                        self.log.warning("%s has not caught up %.0f s after its restart; going on without "
-                                         "the frames it missed", n, MISSING_WAIT_S)
-                        del self._back_since[n]
-                        for m in self._ack_names:
-                            self._acks[m] = max(self._acks.get(m, -1), index - 1)
-                            self._outs[m] = max(self._outs.get(m, -1), index - 1)
-                for n in self._ack_names + self._keepers:
-                    if n in alive:
-                        self._missing_since.pop(n, None)
-                    else:
-                        self._missing_since.setdefault(n, now)
-                waiting = [n for n in self._ack_names if n in alive and self._acks.get(n, -1) < self._required(n, need)]
-                waiting += [n for n in self._ack_names + self._keepers
-                            if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
-                if now < self._hold_until:
-                    waiting.append("workers sending frames again")
-                if not waiting:
-                    break
-                if time.monotonic() > next_note:
-                    next_note = time.monotonic() + 10.0
-                    self.log.warning("frame %d waits for %s to finish frame %d", index, ", ".join(waiting), need)
-                self._ack_cond.wait(0.05)
-        self._idle += time.perf_counter() - t0
 
     def _pace(self, index: int) -> None:
         """Sleep until the frame's time on the recording's clock. A lag of up to
@@ -347,5 +232,7 @@ class Grabber(Worker):
         return figures
 
     def close(self) -> None:
+        if getattr(self, "flow", None) is not None:
+            self.flow.close()
         if getattr(self, "source", None) is not None:
             self.source.close()

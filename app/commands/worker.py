@@ -34,10 +34,10 @@ def main(args) -> int:
         signal.signal(sig, lambda signum, _frame: early.append(signum))
 
     from app.config import load_layout
-    from app.errors import InputError
+    from app.errors import InputError, Stalled
     from app.launcher import ERROR_DIR, LAUNCHED_ENV
     from workers import worker_class
-    from workers.base import configure_logging
+    from workers.base import EXIT_INPUT, EXIT_STALLED, configure_logging
 
     layout = load_layout(args.layout)
     run = layout.run
@@ -57,7 +57,8 @@ def main(args) -> int:
         worker = worker_class(spec.kind)(spec, layout)
         worker.early_signals = early
         return worker.run()
-    except InputError as exc:
+    except (InputError, Stalled) as exc:
+        code = EXIT_STALLED if isinstance(exc, Stalled) else EXIT_INPUT
         written = False
         if run.out:
             d = Path(run.out) / ERROR_DIR
@@ -72,5 +73,8 @@ def main(args) -> int:
         if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
             if not written:
                 print(f"smartroom: error: {exc}", file=sys.stderr)
-            return 2
+            return code
+        if code == EXIT_STALLED:
+            print(f"smartroom: {spec.name}: {exc}", file=sys.stderr)
+            return code
         raise
