@@ -12,19 +12,23 @@ import numpy as np
 
 from app.messages import Tracks, Voxels
 from workers.base import Worker
+from workers.flow import SourceFlow
 
 
 class ClipSource(Worker):
+    """Held back by the spine's flow control (:mod:`workers.flow`) as the grabber is: a
+    frame goes once the pose workers have finished the one ``window`` frames before."""
+
     KIND = "clip_source"
     ORDER = 1
     PRODUCES = ("voxels", "tracks")
-    DEFAULTS = {"file": "", "rate": 10.0}
+    DEFAULTS = {"file": "", "window": 2}
 
     def setup(self):
         self.clip = dict(np.load(self.params["file"]))
         self.next = 0
-        self.wait_for_others(60.0)
-        time.sleep(0.3)
+        self.epoch = self._epoch = time.time_ns() // 1_000_000
+        self.flow = SourceFlow(self, self.params["window"], stall_timeout_s=120.0, ready_note_s=10.0)
 
     def produce(self):
         c = self.clip
@@ -32,6 +36,9 @@ class ClipSource(Worker):
             return False
         k = self.next
         frame = int(c["frames"][k])
+        if k == 0:
+            self.flow.ready(frame)
+        self.flow.hold(frame)
         t = frame / 25.0
         idx = c["indices"][c["offsets"][k]:c["offsets"][k + 1]].astype(np.int32)
         self.publish(self.keys.voxels(), Voxels(
@@ -45,8 +52,10 @@ class ClipSource(Worker):
                                                 ids=c["ids"][a:b].astype(np.int64),
                                                 positions=c["positions"][a:b].astype(np.float64)))
         self.next += 1
-        self.sleep(1.0 / self.params["rate"])
         return True
+
+    def close(self):
+        self.flow.close()
 
     def stream_info(self):
         return len(self.clip["frames"]), int(self.clip["frames"][0]), 25.0
@@ -62,7 +71,7 @@ def run_clip(clip_file, tmp_path, recording, pose_workers: list[dict]) -> list[d
     from tests.conftest import smartroom
     layout = {"room": "smartroom", "bus": {"listen": ["tcp/127.0.0.1:0"]},
               "workers": [{"name": "source", "kind": "tests.pose_source:ClipSource",
-                           "params": {"file": str(clip_file), "rate": 5.0}},
+                           "params": {"file": str(clip_file)}},
                           *({"kind": "pose", **w} for w in pose_workers),
                           {"name": "recorder", "kind": "recorder"}]}
     (tmp_path / "layout.yaml").write_text(yaml.safe_dump(layout))

@@ -138,6 +138,7 @@ def _mmta(errors):
     return float((E <= 0.1).mean())
 
 
+@pytest.mark.integration
 def test_pose_worker_on_the_consensus_beats_the_whole_hull(hull_clip, tiny_recording, tmp_path):
     """The pose worker over the bus, fed the k = 1 hull with misses (default ``voxels:
     consensus``), against the same estimator on the whole hull (``voxels: all``)."""

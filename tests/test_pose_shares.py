@@ -2,6 +2,7 @@
 carries is a layout matter): the result writers join their poses, one line a frame with
 every person, and lose nothing when one worker is behind."""
 import numpy as np
+import pytest
 
 from app.messages import JOINTS, Poses
 from app.pose.offline import simulated_clip
@@ -43,6 +44,7 @@ def test_one_pose_worker_passes_straight_through_and_a_silent_one_does_not_hold_
     assert [m.frame for m in out] == [0, 1, 2] and shares.partial == 3
 
 
+@pytest.mark.integration
 def test_two_pose_workers_share_the_tracks_and_the_recorder_writes_everyone(tiny_recording, tmp_path):
     frames = range(0, 16)
     clip, cal = simulated_clip("meeting3", frames, 0.03, zenithal=False)

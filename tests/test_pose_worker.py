@@ -3,6 +3,7 @@ simulated clip's voxels and true tracks (two people of meeting3), the pose worke
 publishes poses, the recorder writes poses.jsonl; every person is posed every frame,
 each against their own ground truth."""
 import numpy as np
+import pytest
 
 from app.messages import JOINTS
 from app.pose.offline import simulated_clip
@@ -22,6 +23,7 @@ def _write_clip(path, clip, cal, voxel_size):
              positions=np.concatenate([fr.positions for fr in clip]))
 
 
+@pytest.mark.integration
 def test_pose_worker_poses_every_tracked_person(tiny_recording, tmp_path):
     clip, cal = simulated_clip("meeting3", FRAMES, 0.03, zenithal=False)
     assert all(len(fr.ids) >= 2 for fr in clip)
