@@ -36,9 +36,9 @@ def test_list_names_every_scene(capsys):
     command, args = _args("--list")
     assert command.main(args) == 0
     out = capsys.readouterr().out
-    for name in ("walk1", "gesture1", "meeting3", "crowd6", "occluded1"):
+    for name in ("walk1", "gesture1", "meeting3", "crowd6", "occluded1", "random"):
         assert name in out
-    assert len(out.strip().splitlines()) == len(SCENES)
+    assert len(out.strip().splitlines()) == len(SCENES) + 1   # and the random scenes
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -135,15 +135,18 @@ class BodyShape:
     stripes: float = 0.0         # stripe period of the shirt (m), 0 = plain
     hair_front: float = 0.45     # hairline height at the forehead (unit head sphere)
     hair_back: float = -0.35     # hairline height at the nape (lower = longer hair)
+    legs: float = 1.0            # proportions: leg, arm and trunk lengths against the average
+    arms: float = 1.0            # (Drillis & Contini's) fractions; see proportioned()
+    torso: float = 1.0
 
     # segment lengths (m), Drillis & Contini fractions of the stature
     @property
     def thigh(self) -> float:
-        return 0.240 * self.height
+        return 0.240 * self.height * self.legs
 
     @property
     def shin(self) -> float:
-        return 0.246 * self.height
+        return 0.246 * self.height * self.legs
 
     @property
     def ankle_height(self) -> float:
@@ -159,7 +162,7 @@ class BodyShape:
 
     @property
     def spine(self) -> float:
-        return 0.295 * self.height
+        return 0.295 * self.height * self.torso
 
     @property
     def shoulder_half_width(self) -> float:
@@ -167,15 +170,15 @@ class BodyShape:
 
     @property
     def upper_arm(self) -> float:
-        return 0.186 * self.height
+        return 0.186 * self.height * self.arms
 
     @property
     def forearm(self) -> float:
-        return 0.146 * self.height
+        return 0.146 * self.height * self.arms
 
     @property
     def hand(self) -> float:
-        return 0.072 * self.height
+        return 0.072 * self.height * self.arms
 
     @property
     def foot(self) -> float:
@@ -196,6 +199,12 @@ class BodyShape:
     def colours(self) -> dict:
         """Clothing and skin colours, RGB 0-255 (the ground truth's optional field)."""
         return {k: [int(round(255 * c)) for c in getattr(self, k)] for k in ("shirt", "trousers", "skin", "hair")}
+
+
+def trunk_for_legs(legs: float) -> float:
+    """The trunk factor that keeps the stature when the legs are ``legs`` times the
+    average's: shin + thigh (0.486 of the stature) and spine (0.295) share 0.781 of it."""
+    return (0.781 - 0.486 * legs) / 0.295
 
 
 def random_shape(rng: np.random.Generator, height: float | None = None) -> BodyShape:

@@ -1,5 +1,6 @@
 """The built-in default source of ``smartroom run``: a simulated recording rendered once
-into a cache folder and replayed from there.
+into a cache folder and replayed from there (the random scenes of ``smartroom bench
+accuracy`` too: scene ``random``, the seed drawing the scene).
 
 The folder is ``$SMARTROOM_CACHE/<scene>-<seconds>s-<fps>fps-seed<k>-v<renderer
 version>`` (``SMARTROOM_CACHE`` defaults to ``~/.cache/smartroom/recordings``). It is
@@ -40,9 +41,10 @@ def default_recording(scene: str = "meeting3", seconds: float = DEFAULT_SECONDS,
     """The cached recording of a scene, rendered first if needed (progress with ETA on
     stderr unless ``progress`` is given). Returns the recording folder."""
     from app.simulation.scenes import get_scene
-    from app.simulation.simulator import print_progress, render_recording
+    from app.simulation.simulator import RANDOM, print_progress, render_recording
 
-    get_scene(scene)  # unknown scene: InputError before anything else
+    if scene != RANDOM:
+        get_scene(scene)  # unknown scene: InputError before anything else
     path = cache_path(scene, seconds, fps, seed, zenithal)
     if _complete(path):
         return path

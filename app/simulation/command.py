@@ -2,6 +2,7 @@
 
     smartroom simulate --scene NAME --out DIR [--seconds S] [--fps F] [--seed K]
                        [--zenithal] [--size WxH] [--occupancy SIZE_M]
+    smartroom simulate --random SEED --out DIR [--seconds S] [--fps F]
     smartroom simulate --list
     smartroom simulate --preview PNG [--scene NAME] [--frame N] [--seed K]
 
@@ -20,6 +21,9 @@ __all__ = ["add_arguments", "main", "parse_size"]
 
 def add_arguments(parser) -> None:
     parser.add_argument("--scene", default="meeting3", help="scene name (see --list; default meeting3)")
+    parser.add_argument("--random", type=int, default=None, metavar="SEED",
+                        help="a random scene drawn from SEED instead: room, cameras, people and what they do "
+                             "(--size and --zenithal do not apply: the scene brings its cameras)")
     parser.add_argument("--out", metavar="DIR", help="recording folder to write")
     parser.add_argument("--seconds", type=float, default=None,
                         help="length in seconds (default: the scene's own length)")
@@ -56,15 +60,27 @@ def _check_number(name: str, value, positive: bool = True):
 
 
 def main(args) -> int:
+    from app.simulation.random_scene import RANDOM_SECONDS
     from app.simulation.scenes import SCENES, get_scene
+    from app.simulation.simulator import RANDOM
 
     if args.list:
         width = max(len(n) for n in SCENES)
         for name, scene in SCENES.items():
             print(f"{name:<{width}}  {scene.description} ({scene.seconds:g} s, {len(scene.people)} "
                   f"{'person' if len(scene.people) == 1 else 'people'})")
+        print(f"{RANDOM:<{width}}  --random SEED: a room, a camera rig, 1-6 people and what they do, drawn from "
+              f"the seed ({RANDOM_SECONDS:g} s)")
         return 0
-    scene = get_scene(args.scene)
+    if args.random is not None or args.scene == RANDOM:
+        if args.random is not None:
+            args.seed = args.random
+        if args.random is not None and args.random < 0:
+            raise InputError(f"--random {args.random}: a seed is a number from 0 up")
+        name, natural = RANDOM, RANDOM_SECONDS
+    else:
+        scene = get_scene(args.scene)
+        name, natural = scene.name, scene.seconds
     _check_number("--seconds", args.seconds)
     _check_number("--fps", args.fps)
     _check_number("--occupancy", args.occupancy)
@@ -74,23 +90,23 @@ def main(args) -> int:
     if args.preview:
         from app.simulation.preview import write_preview
         from app.simulation.simulator import Simulator
-        sim = Simulator(scene.name, seed=args.seed, fps=args.fps, seconds=args.seconds, width=width, height=height,
+        sim = Simulator(name, seed=args.seed, fps=args.fps, seconds=args.seconds, width=width, height=height,
                         zenithal=args.zenithal)
         n = sim.frame_count()
         frame = n // 2 if args.frame is None else args.frame
         if not 0 <= frame < max(n, 1):
             raise InputError(f"--frame {frame} is outside the scene's {n} frames")
         path = write_preview(args.preview, sim, frame)
-        print(f"wrote {path} (scene {scene.name}, frame {frame}, cameras {', '.join(sim.cameras)})")
+        print(f"wrote {path} (scene {name}, seed {args.seed}, frame {frame}, cameras {', '.join(sim.cameras)})")
         return 0
     if not args.out:
         raise InputError("simulate needs --out DIR (or --preview PNG, or --list)")
     from app.simulation.simulator import print_progress, render_recording
-    seconds = args.seconds if args.seconds is not None else scene.seconds
+    seconds = args.seconds if args.seconds is not None else natural
     if seconds * args.fps < 1:
         raise InputError(f"--seconds {seconds} at --fps {args.fps} is less than one frame")
-    progress = None if args.quiet else print_progress(f"simulate {scene.name}")
-    path = render_recording(scene.name, args.out, seconds=seconds, fps=args.fps, seed=args.seed,
+    progress = None if args.quiet else print_progress(f"simulate {name}" + (f" {args.seed}" if name == RANDOM else ""))
+    path = render_recording(name, args.out, seconds=seconds, fps=args.fps, seed=args.seed,
                             zenithal=args.zenithal, width=width, height=height, occupancy=args.occupancy,
                             progress=progress, codec=args.codec, overwrite=args.overwrite)
     print(f"wrote {path}", file=sys.stdout)

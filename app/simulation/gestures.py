@@ -14,12 +14,19 @@ import math
 
 __all__ = ["GESTURES", "REACH", "STAND_REACH", "REFERENCE_HEIGHT", "gesture_angles", "measure_reach"]
 
-#: Gesture name -> duration (s).
+#: Gesture name -> duration (s). The last three move the whole body: crouching down
+#: (to the floor and up again), bending down with straight legs, reaching up on tiptoe.
 GESTURES = {
     "wave": 3.0, "point": 2.4, "raise_both": 2.6, "arms_out": 2.8, "circle": 3.2, "explain": 3.5,
     "reach": 2.4, "stretch": 3.0, "bow": 2.4, "look_around": 3.0, "shrug": 1.8, "hands_on_hips": 2.5,
+    "crouch": 4.0, "bend_down": 3.0, "reach_up": 3.0,
 }
 GESTURE_IDS = {name: i for i, name in enumerate(GESTURES)}
+#: The gestures wandering people pick from (the built-in scenes' choice, kept so their
+#: recordings stay the same); random scenes script the others (app.simulation.random_scene).
+WANDER_GESTURES = tuple(GESTURES)[:12]
+#: Gestures that bring the body low (the ground truth calls the person "crouching").
+LOW_GESTURES = ("crouch", "bend_down")
 
 #: Horizontal reach (m) from the root during each gesture: (overall, below 1 m), for the
 #: reference body (see :func:`measure_reach`, which recomputes this table).
@@ -27,6 +34,7 @@ REACH = {
     "wave": (1.0, 0.71), "point": (0.91, 0.5), "raise_both": (0.87, 0.27), "arms_out": (1.04, 0.6),
     "circle": (1.03, 0.76), "explain": (0.76, 0.61), "reach": (0.93, 0.75), "stretch": (0.9, 0.27),
     "bow": (0.67, 0.39), "look_around": (0.33, 0.33), "shrug": (0.73, 0.59), "hands_on_hips": (0.53, 0.42),
+    "crouch": (0.78, 0.78), "bend_down": (0.76, 0.68), "reach_up": (0.87, 0.57),
 }
 #: Horizontal reach of the reference body standing at rest.
 STAND_REACH = 0.335
@@ -77,6 +85,18 @@ def gesture_angles(name: str, t: float) -> dict:
     if name == "hands_on_hips":
         return {"l_sh_abd": 0.75, "r_sh_abd": 0.75, "l_elbow": 1.75, "r_elbow": 1.75, "l_sh_rot": 0.9,
                 "r_sh_rot": 0.9, "l_sh_flex": -0.35, "r_sh_flex": -0.35}
+    if name == "crouch":   # a deep squat, hands to the floor in front, feet flat (ankle = knee - hip)
+        return {"l_hip_flex": 1.75, "r_hip_flex": 1.75, "l_knee": 2.15, "r_knee": 2.15, "l_ankle": 0.40,
+                "r_ankle": 0.40, "l_hip_abd": 0.25, "r_hip_abd": 0.25, "torso_flex": 0.45, "neck_flex": 0.1,
+                "l_sh_flex": 0.9, "r_sh_flex": 0.75, "l_sh_abd": 0.15, "r_sh_abd": 0.15, "l_elbow": 0.35,
+                "r_elbow": 0.5}
+    if name == "bend_down":   # picking something up with straight legs
+        return {"torso_flex": 1.05, "l_hip_flex": 0.35, "r_hip_flex": 0.35, "l_knee": 0.25, "r_knee": 0.25,
+                "l_ankle": -0.1, "r_ankle": -0.1, "neck_flex": -0.25, "l_sh_flex": 1.0, "r_sh_flex": 1.1,
+                "l_elbow": 0.2, "r_elbow": 0.25, "l_sh_abd": 0.1, "r_sh_abd": 0.1}
+    if name == "reach_up":   # one arm up to a high shelf, on tiptoe, looking up
+        return {"r_sh_flex": 2.95, "r_sh_abd": 0.3, "r_elbow": 0.1, "r_sh_rot": 0.0, "l_sh_flex": 0.4,
+                "l_elbow": 0.5, "neck_flex": -0.45, "torso_lat": -0.08, "l_ankle": -0.45, "r_ankle": -0.45}
     raise KeyError(name)
 
 

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.simulation.gestures import GESTURE_IDS, GESTURES, REACH, REFERENCE_BUILD, REFERENCE_HEIGHT, STAND_REACH
+from app.simulation.gestures import (GESTURE_IDS, GESTURES, REACH, REFERENCE_BUILD, REFERENCE_HEIGHT, STAND_REACH,
+                                    WANDER_GESTURES)
 from app.simulation.paths import FloorPlan, PathError, _resample
 from app.simulation.room import Chair, Room
 
@@ -666,7 +667,7 @@ class Choreographer:
             yield from self._walk(ag, [goal], speed, patience=3.0, avoid=True)
             r = self.rng.random()
             yaw = float(self.rng.uniform(-math.pi, math.pi))
-            fitting = [g for g in GESTURES if self._room_for(ag, g)]
+            fitting = [g for g in WANDER_GESTURES if self._room_for(ag, g)]
             if gestures and r < 0.35 and fitting:
                 yield from self._turn(ag, yaw)
                 yield from self._gesture(ag, fitting[int(self.rng.integers(len(fitting)))], wait=1.5)

@@ -25,7 +25,7 @@ import numpy as np
 
 from app.simulation.body import (DOF, BodyShape, Pose, clip_to_limits, forward_kinematics,
                                  neutral_pose, sole_height)
-from app.simulation.gestures import GESTURES, gesture_angles
+from app.simulation.gestures import GESTURES, LOW_GESTURES, gesture_angles
 from app.simulation.motion import DT, SPOT_AHEAD, Track
 from app.simulation.room import Chair
 
@@ -80,6 +80,21 @@ def _keyed(t: float, keys):
 
 
 _GESTURE_NAMES = list(GESTURES)
+#: What a person is doing, as the ground truth says (``activity``).
+ACTIVITIES = ("walking", "standing", "gesturing", "sitting", "crouching")
+
+
+def activity(sample: dict) -> str:
+    """The activity of a track sample (:meth:`Actor.sample`): sitting (on a chair, also
+    while talking with the hands), crouching (a crouch or a bend down under way),
+    gesturing, walking, else standing (still, or turning in place)."""
+    if sample["sit"] > 0.5:
+        return "sitting"
+    if sample["gesture"] >= 0 and sample["gweight"] > 0.3:
+        return "crouching" if _GESTURE_NAMES[sample["gesture"]] in LOW_GESTURES else "gesturing"
+    if sample["speed"] > 0.05:
+        return "walking"
+    return "standing"
 
 
 def _leg_ik(shape: BodyShape, hip_local: np.ndarray, ankle_local: np.ndarray):

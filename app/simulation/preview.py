@@ -50,15 +50,20 @@ def draw_skeletons(img: np.ndarray, camera, record: dict) -> np.ndarray:
 
 
 def mosaic(images: list[np.ndarray], names: list[str], columns: int | None = None) -> np.ndarray:
-    """Tile images (same size) in a grid with their names written on them."""
+    """Tile images in a grid with their names written on them; images of other sizes are
+    scaled to the widest one's width (aspect kept) and padded to the tallest."""
     n = len(images)
     columns = columns or (2 if n <= 4 else 3)
     rows = math.ceil(n / columns)
-    h, w = images[0].shape[:2]
+    w = max(img.shape[1] for img in images)
+    images = [img if img.shape[1] == w else cv2.resize(img, (w, round(img.shape[0] * w / img.shape[1])),
+                                                       interpolation=cv2.INTER_AREA) for img in images]
+    h = max(img.shape[0] for img in images)
     out = np.zeros((rows * h, columns * w, 3), dtype=np.uint8)
     for k, (img, name) in enumerate(zip(images, names)):
         r, c = divmod(k, columns)
-        tile = img.copy()
+        tile = np.zeros((h, w, 3), dtype=np.uint8)
+        tile[:img.shape[0]] = img
         cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
         out[r * h:(r + 1) * h, c * w:(c + 1) * w] = tile

@@ -127,10 +127,12 @@ def _ceiling_albedo(x, y, lights):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def trace_room(rays, ox, oy, oz, size, door, corridor, boxes, box_bbox, decor, lights, lightmap, cell,
-               albedo, texture):
+               albedo, texture, look):
     """Ray-cast the empty room: BGR image (uint8), depth (ray distance, float32) and the
     floor point (x, y) of every room-floor pixel (NaN elsewhere). Each furniture box is
-    tested only inside its pixel bounding box ``box_bbox[b] = [u0, v0, u1, v1]``."""
+    tested only inside its pixel bounding box ``box_bbox[b] = [u0, v0, u1, v1]``.
+    ``look``: the room's colours, light colour and exposure
+    (:func:`app.simulation.room.room_look`)."""
     h, w = rays.shape[0], rays.shape[1]
     img = np.empty((h, w, 3), dtype=np.uint8)
     depth = np.empty((h, w), dtype=np.float32)
@@ -172,7 +174,7 @@ def trace_room(rays, ox, oy, oz, size, door, corridor, boxes, box_bbox, decor, l
                 r, g, bl = material_albedo(m, px, py, pz, albedo, texture)
                 e = irradiance(px, py, pz, nx, ny, nz, lights)
             elif surf == _SURF_FLOOR:
-                r, g, bl = floor_albedo(px, py)
+                r, g, bl = floor_albedo(px, py, look)
                 e = _lightmap_at(lightmap, cell, px, py)
                 floor_xy[v, u, 0] = px
                 floor_xy[v, u, 1] = py
@@ -184,7 +186,7 @@ def trace_room(rays, ox, oy, oz, size, door, corridor, boxes, box_bbox, decor, l
                 if wall == 0 and door[0] - 0.07 <= py <= door[1] + 0.07 and pz <= door[2] + 0.07:
                     r, g, bl = 0.93, 0.92, 0.89  # door frame
                 else:
-                    r, g, bl, emissive = wall_albedo(wall, uu, pz, size[2], decor)
+                    r, g, bl, emissive = wall_albedo(wall, uu, pz, size[2], decor, look)
                 e = irradiance(px, py, pz, nx, ny, nz, lights)
                 # darker where walls meet the floor, the ceiling and each other
                 corner = min(min(px, size[0] - px), min(py, size[1] - py))
@@ -198,7 +200,11 @@ def trace_room(rays, ox, oy, oz, size, door, corridor, boxes, box_bbox, decor, l
             else:
                 r, g, bl = 0.74, 0.72, 0.66
                 e = 0.5 if wall != 2 else 0.42
-            s = 1.0 if emissive else e * EXPOSURE
+            if emissive:
+                s = 1.0
+            else:   # lit: the lights' colour and the exposure
+                s = e * EXPOSURE * look[21]
+                r, g, bl = r * look[17], g * look[18], bl * look[19]
             img[v, u, 0] = min(255.0, bl * s * 255.0)
             img[v, u, 1] = min(255.0, g * s * 255.0)
             img[v, u, 2] = min(255.0, r * s * 255.0)
@@ -277,9 +283,10 @@ def depth_people(zbuf, winner, rays, ox, oy, oz, kinds, prims, bbox, seg2d):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def shade_people(img, label, zbuf, winner, area, rays, ox, oy, oz, kinds, prims, owner, material,
-                 ids, palette, hair, stripes, lights):
+                 ids, palette, hair, stripes, lights, look):
     """Shading pass over ``area = [u0, v0, u1, v1]``: every pixel a body won gets its
-    person's id in ``label`` and its shaded colour (Lambert, the room's lights, BGR)."""
+    person's id in ``label`` and its shaded colour (Lambert, the room's lights in their
+    colour ``look[17:20]``, the exposure ``look[21]``, BGR)."""
     for v in range(area[1], area[3] + 1):
         for u in range(area[0], area[2] + 1):
             i = winner[v, u]
@@ -296,10 +303,10 @@ def shade_people(img, label, zbuf, winner, area, rays, ox, oy, oz, kinds, prims,
             hz = oz + t * np.float64(rays[v, u, 2])
             nx, ny, nz = primitive_normal(kind, p, hx, hy, hz)
             r, g, b = _person_albedo(material[i], person, kind, p, hx, hy, hz, palette, hair, stripes)
-            s = irradiance(hx, hy, hz, nx, ny, nz, lights) * EXPOSURE * 255.0
-            img[v, u, 0] = min(255.0, b * s)
-            img[v, u, 1] = min(255.0, g * s)
-            img[v, u, 2] = min(255.0, r * s)
+            s = irradiance(hx, hy, hz, nx, ny, nz, lights) * EXPOSURE * look[21] * 255.0
+            img[v, u, 0] = min(255.0, b * look[19] * s)
+            img[v, u, 1] = min(255.0, g * look[18] * s)
+            img[v, u, 2] = min(255.0, r * look[17] * s)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -483,11 +490,13 @@ class CameraView:
             self.rays, ox, oy, oz, np.array(room.size, dtype=np.float64),
             np.array(room.door, dtype=np.float64), np.array(room.corridor, dtype=np.float64),
             boxes, box_bbox, np.ascontiguousarray(room.decor), lighting.lights,
-            lighting.lightmap, lighting.cell, MATERIAL_ALBEDO, MATERIAL_TEXTURE)
+            lighting.lightmap, lighting.cell, MATERIAL_ALBEDO, MATERIAL_TEXTURE,
+            np.ascontiguousarray(room.look, dtype=np.float64))
         self.depth = depth
         floor = ~np.isnan(floor_xy[:, :, 0])
         self.floor_pix = np.flatnonzero(floor.ravel()).astype(np.int64)
         self.floor_xy = np.ascontiguousarray(floor_xy.reshape(-1, 2)[self.floor_pix])
+        self._look = np.ascontiguousarray(room.look, dtype=np.float64)
         self._img = np.empty_like(self.static)
         self._zbuf = np.empty_like(self.depth)
         self._winner = np.full(self.depth.shape, -1, dtype=np.int32)
@@ -603,7 +612,7 @@ class CameraView:
                                  bbox[seen, 3].max()], dtype=np.int64)
                 shade_people(img, label, zbuf, self._winner, area, self.rays, ox, oy, oz, bodies.kinds,
                              bodies.prims, bodies.owner, bodies.material, bodies.ids, bodies.palette,
-                             bodies.hair, bodies.stripes, self.lighting.lights)
+                             bodies.hair, bodies.stripes, self.lighting.lights, self._look)
         out = np.empty_like(img)
         src = cv2.GaussianBlur(img, (3, 3), 0.55) if blur else img
         if noise is None:

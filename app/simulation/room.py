@@ -24,7 +24,8 @@ from calibration import Calibration, Camera
 
 __all__ = [
     "Room", "Chair", "LAYOUTS", "make_room", "room_cameras", "room_calibration",
-    "MATERIALS", "WALL_X0", "WALL_X1", "WALL_Y0", "WALL_Y1",
+    "MATERIALS", "WALL_X0", "WALL_X1", "WALL_Y0", "WALL_Y1", "room_look", "DEFAULT_LOOK",
+    "FLOOR_PLANKS", "FLOOR_TILES", "FLOOR_CARPET",
 ]
 
 ROOM_SIZE = (5.0, 4.0, 2.5)
@@ -46,6 +47,31 @@ MATERIALS = {
 }
 MATERIAL_ALBEDO = np.array([m[1] for m in sorted(MATERIALS.values())], dtype=np.float64)
 MATERIAL_TEXTURE = np.array([m[2] for m in sorted(MATERIALS.values())], dtype=np.int64)
+
+#: Floor kinds of a room's look.
+FLOOR_PLANKS, FLOOR_TILES, FLOOR_CARPET = 0, 1, 2
+
+
+def room_look(walls=((0.86, 0.84, 0.78), (0.66, 0.74, 0.80), (0.87, 0.85, 0.79), (0.84, 0.82, 0.76)),
+              floor=(0.58, 0.43, 0.29), floor_kind: int = FLOOR_PLANKS, floor_scale: float = 0.18,
+              light=(1.0, 1.0, 1.0), skirting: float = 1.0, exposure: float = 1.0) -> np.ndarray:
+    """A room's look as the renderer takes it (``Room.look``, 22 floats): the base colour
+    of the walls x = 0, x = max, y = 0, y = max (RGB 0-1, in that order), the floor's
+    colour, kind (planks, tiles, carpet) and scale (plank width, tile size, m), the
+    lights' colour (RGB multipliers), the skirting boards' brightness and the camera
+    exposure (a multiplier). The defaults are the built-in rooms' look."""
+    out = np.empty(22, dtype=np.float64)
+    out[0:12] = np.asarray(walls, dtype=np.float64).reshape(12)
+    out[12:15] = floor
+    out[15] = floor_kind
+    out[16] = floor_scale
+    out[17:20] = light
+    out[20] = skirting
+    out[21] = exposure
+    return out
+
+
+DEFAULT_LOOK = room_look()
 
 
 @dataclass(frozen=True)
@@ -78,6 +104,7 @@ class Room:
     lights: np.ndarray                # (L, 5) x, y, z, power, panel size
     description: str = ""
     spots: dict = field(default_factory=dict)  # named free standing spots (x, y)
+    look: np.ndarray = field(default_factory=lambda: DEFAULT_LOOK.copy())   # colours and light (room_look)
 
     @property
     def room_min(self) -> np.ndarray:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.errors import InputError
-from app.simulation.body import random_shape
+from app.simulation.body import BodyShape, random_shape
 from app.simulation.motion import Choreographer, Enter, Gesture, Leave, Sit, Stand, Turn, Walk, Wander
 from app.simulation.poses import Actor
 from app.simulation.room import Room, make_room
@@ -27,12 +27,13 @@ PI = math.pi
 @dataclass(frozen=True)
 class PersonSpec:
     """One person of a scene: script, start ``(x, y, yaw)`` (unless it enters), whether
-    the script repeats, and an optional fixed stature."""
+    the script repeats, and an optional fixed stature or a whole body (random scenes)."""
 
     script: tuple
     start: tuple | None = None
     repeat: bool = False
     height: float | None = None
+    shape: BodyShape | None = None
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ def build_actors(scene: Scene, seed: int, horizon: float, room: Room | None = No
     """
     room = room or make_room(scene.layout)
     rng = np.random.default_rng(seed)
-    shapes = [random_shape(rng, spec.height) for spec in scene.people]
+    shapes = [spec.shape if spec.shape is not None else random_shape(rng, spec.height) for spec in scene.people]
     speeds = [float(rng.uniform(1.0, 1.3)) for _ in scene.people]
     quirks = [rng.uniform(0.0, 2 * PI, 8) for _ in scene.people]
     plan_rng = np.random.default_rng([seed, 1])

@@ -83,21 +83,35 @@ def irradiance(px, py, pz, nx, ny, nz, lights):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def floor_albedo(x, y):
-    """Oak laminate planks (18 cm x 1.2 m along x) with per-plank tone and grain."""
-    row = int(math.floor(y / 0.18))
-    offset = _hash(row, 7, 3) * 1.2
-    col = int(math.floor((x + offset) / 1.2))
-    tone = 0.82 + 0.3 * _hash(row, col, 11)
-    grain = fbm((x + offset) * 1.5, y * 40.0, row * 31 + col, 3)
-    fine = value_noise(x * 90.0, y * 300.0, 5)
-    v = tone * (0.86 + 0.22 * grain + 0.05 * fine)
-    # dark seams between planks
-    fy = y / 0.18 - row
-    fx = (x + offset) / 1.2 - col
-    if fy < 0.025 or fx < 0.004:
-        v *= 0.55
-    return 0.58 * v, 0.43 * v, 0.29 * v
+def floor_albedo(x, y, look):
+    """The floor of a room's look (:func:`app.simulation.room.room_look`): laminate planks
+    (``look[16]`` wide, 1.2 m long along x) with per-plank tone and grain (the default:
+    oak, 18 cm), square tiles of side ``look[16]`` with grout lines, or carpet; in the
+    look's floor colour ``look[12:15]``."""
+    kind = int(look[15])
+    width = look[16]
+    if kind == 1:   # tiles
+        i, j = int(math.floor(x / width)), int(math.floor(y / width))
+        fx, fy = x / width - i, y / width - j
+        v = 0.93 + 0.1 * _hash(i, j, 23) + 0.03 * value_noise(x * 25.0, y * 25.0, 29)
+        if fx < 0.012 or fy < 0.012:
+            v *= 0.72
+    elif kind == 2:   # carpet
+        v = 0.92 + 0.08 * fbm(x * 3.0, y * 3.0, 37, 3) + 0.06 * value_noise(x * 220.0, y * 220.0, 41)
+    else:           # planks
+        row = int(math.floor(y / width))
+        offset = _hash(row, 7, 3) * 1.2
+        col = int(math.floor((x + offset) / 1.2))
+        tone = 0.82 + 0.3 * _hash(row, col, 11)
+        grain = fbm((x + offset) * 1.5, y * 40.0, row * 31 + col, 3)
+        fine = value_noise(x * 90.0, y * 300.0, 5)
+        v = tone * (0.86 + 0.22 * grain + 0.05 * fine)
+        # dark seams between planks
+        fy = y / width - row
+        fx = (x + offset) / 1.2 - col
+        if fy < 0.025 or fx < 0.004:
+            v *= 0.55
+    return look[12] * v, look[13] * v, look[14] * v
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -117,8 +131,6 @@ def _window(u, z, u0, u1, z0, z1, r, g, b):
         return 0.62 * w, 0.60 * w, 0.58 * w
     return r * (0.92 + 0.12 * h), g * (0.95 + 0.08 * h), b
 
-
-_WALL_BASE = ((0.86, 0.84, 0.78), (0.66, 0.74, 0.80), (0.87, 0.85, 0.79), (0.84, 0.82, 0.76))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -154,8 +166,9 @@ def _poster(u, z, u0, u1, z0, z1):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def wall_albedo(wall, u, z, height, decor):
-    """Albedo ``(r, g, b, emissive)`` of a wall point; ``u`` runs along the wall."""
+def wall_albedo(wall, u, z, height, decor, look):
+    """Albedo ``(r, g, b, emissive)`` of a wall point; ``u`` runs along the wall; the
+    wall's base colour is ``look[3 wall: 3 wall + 3]``."""
     for i in range(decor.shape[0] - 1, -1, -1):
         d = decor[i]
         if int(d[0]) == wall and d[1] <= u <= d[2] and d[3] <= z <= d[4]:
@@ -172,8 +185,8 @@ def wall_albedo(wall, u, z, height, decor):
             w = 0.96 + 0.04 * value_noise(u * 20.0, z * 20.0, 3)
             return d[6] * w, d[7] * w, d[8] * w, False
     if z < 0.08:  # skirting board
-        return 0.32, 0.30, 0.28, False
-    br, bg, bb = _WALL_BASE[wall]
+        return 0.32 * look[20], 0.30 * look[20], 0.28 * look[20], False
+    br, bg, bb = look[3 * wall], look[3 * wall + 1], look[3 * wall + 2]
     blot = fbm(u * 1.1 + wall * 7.0, z * 1.1, 21 + wall, 4)
     fine = value_noise(u * 60.0, z * 60.0, 5 + wall)
     w = 0.90 + 0.16 * blot + 0.03 * fine

@@ -9,7 +9,8 @@ Ground-truth record (CONTRACT §1, optional fields added)::
 
     {"frame": i, "t": s, "people": [{"id", "centroid", "head", "joints": {15 names},
       "visible": {joint: false, ...},         # joints no camera sees
-      "height": m, "sitting": bool, "colours": {"shirt", "trousers", "skin", "hair"}}]}
+      "height": m, "sitting": bool, "activity": "walking",   # or standing, gesturing, sitting, crouching
+      "colours": {"shirt", "trousers", "skin", "hair"}}]}
 
 ``centroid`` is the volume centroid of the body's primitives, ``head`` the head centre
 (the ``head`` joint). People count while their centroid is inside the room (not in the
@@ -31,12 +32,14 @@ import numpy as np
 from app.errors import InputError
 from app.messages import JOINTS
 from app.simulation.body import FrameBodies, body_centroid, body_primitives, forward_kinematics
+from app.simulation.poses import activity
 from app.simulation.room import room_calibration
 from app.simulation.scenes import build_actors, get_scene
 
-__all__ = ["Simulator", "render_recording", "DEFAULT_SCENE"]
+__all__ = ["Simulator", "render_recording", "DEFAULT_SCENE", "RANDOM"]
 
 DEFAULT_SCENE = "meeting3"
+RANDOM = "random"          # the scene drawn from the seed (app.simulation.random_scene)
 GT_DECIMALS = 4
 
 
@@ -51,11 +54,25 @@ class Simulator:
     the zenithal one, when ``zenithal``). ``width``/``height`` scale the cameras (the
     intrinsics scale with them). ``calibration`` replaces the room's cameras altogether
     (e.g. cameras of different sizes, portrait ones, other frame rates: its fps is used).
+
+    The scene :data:`RANDOM` is drawn from ``seed`` (:mod:`app.simulation.random_scene`):
+    its room, its look, its cameras (count, sizes: ``width``, ``height`` and ``zenithal``
+    do not apply), its people and their scripts, its sensor noise and light flicker.
     """
 
     def __init__(self, scene: str = DEFAULT_SCENE, seed: int = 0, fps: float = 25.0, seconds: float | None = None,
                  width: int = 640, height: int = 480, zenithal: bool = False, cameras=None, calibration=None):
-        self.scene = get_scene(scene)
+        room = None
+        self.noise_sigma, self.flicker, self.drawn = _noise_sigma(), 1.0, None
+        if scene == RANDOM:
+            from app.simulation.random_scene import RANDOM_SECONDS, random_scene
+            self.drawn = random_scene(seed, seconds if seconds is not None else RANDOM_SECONDS, fps)
+            self.scene, room = self.drawn.scene, self.drawn.room
+            self.noise_sigma, self.flicker = self.drawn.noise_sigma, self.drawn.flicker
+            calibration = calibration or self.drawn.calibration
+            zenithal = False
+        else:
+            self.scene = get_scene(scene)
         if calibration is not None:
             fps = calibration.fps
         if not (fps > 0 and math.isfinite(fps)):
@@ -67,7 +84,7 @@ class Simulator:
         self.seed = int(seed)
         self.fps = float(fps)
         self.seconds = float(seconds) if seconds is not None else self.scene.seconds
-        self.room, self.actors, self.conflicts = build_actors(self.scene, self.seed, self.seconds + 1.0)
+        self.room, self.actors, self.conflicts = build_actors(self.scene, self.seed, self.seconds + 1.0, room)
         zenithal = zenithal or (cameras is not None and "cam4" in cameras)
         calib = calibration or room_calibration(self.room, self.fps, width, height, zenithal)
         if cameras is not None:
@@ -102,9 +119,11 @@ class Simulator:
             pose = actor.pose(t)
             skel = forward_kinematics(actor.shape, pose)
             kinds, rows, mats = body_primitives(actor.shape, skel)
+            sample = actor.sample(t)
             out.append({"id": actor.id, "actor": actor, "shape": actor.shape, "pose": pose, "skeleton": skel,
                         "kinds": kinds, "rows": rows, "materials": mats,
-                        "centroid": body_centroid(kinds, rows), "sitting": actor.sample(t)["sit"] > 0.5})
+                        "centroid": body_centroid(kinds, rows), "sitting": sample["sit"] > 0.5,
+                        "activity": activity(sample)})
         return out
 
     def bodies(self, index: int) -> FrameBodies:
@@ -153,6 +172,7 @@ class Simulator:
                 "visible": {name: False for j, name in enumerate(JOINTS) if not vis[p, j].any()},
                 "height": round(float(person["shape"].height), GT_DECIMALS),
                 "sitting": bool(person["sitting"]),
+                "activity": person["activity"],
                 "colours": person["shape"].colours(),
             }
             listed.append(rec)
@@ -173,7 +193,7 @@ class Simulator:
             self._views = {cam.name: CameraView(cam, self.room, self._lighting) for cam in self.calibration.cameras}
             n = max(c.width * c.height for c in self.calibration.cameras) * 3
             rng = np.random.default_rng([self.seed, 7])
-            self._noise = rng.normal(0.0, _noise_sigma(), n + 65536).astype(np.float32)
+            self._noise = rng.normal(0.0, self.noise_sigma, n + 65536).astype(np.float32)
             self._noise_span = 65536
         return self._views
 
@@ -191,8 +211,10 @@ class Simulator:
         """Slight illumination flicker (mains-driven lights, auto exposure) of a frame."""
         t = self.time(index)
         ph = 1.7 * cam_index + 0.3 * self.seed
-        return (1.0 + 0.012 * math.sin(2 * math.pi * 0.9 * t + ph) + 0.006 * math.sin(2 * math.pi * 3.1 * t + 2 * ph)
-                + 0.004 * math.sin(2 * math.pi * 11.3 * t + ph * 3.0))
+        k = self.flicker
+        return (1.0 + k * 0.012 * math.sin(2 * math.pi * 0.9 * t + ph)
+                + k * 0.006 * math.sin(2 * math.pi * 3.1 * t + 2 * ph)
+                + k * 0.004 * math.sin(2 * math.pi * 11.3 * t + ph * 3.0))
 
     def render(self, index: int, noise: bool = True):
         """Frame ``index``: ``(images {cam: BGR uint8}, labels {cam: int16 person id per
@@ -273,9 +295,12 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
         if occ is not None:
             occ.close()
         with open(writer.file("simulation.json"), "w", encoding="utf-8") as fh:
-            json.dump({"scene": scene, "seed": int(seed), "fps": float(fps), "seconds": sim.seconds,
-                       "frames": total, "zenithal": bool(zenithal), "layout": sim.room.name,
-                       "renderer_version": _renderer_version()}, fh, indent=1)
+            info = {"scene": scene, "seed": int(seed), "fps": float(fps), "seconds": sim.seconds,
+                    "frames": total, "zenithal": bool(zenithal), "layout": sim.room.name,
+                    "renderer_version": _renderer_version()}
+            if sim.drawn is not None:
+                info["random"] = sim.drawn.summary()
+            json.dump(info, fh, indent=1)
     except BaseException:
         writer.abort()
         raise
