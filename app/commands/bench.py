@@ -14,6 +14,10 @@
 - ``smartroom bench segmentation``: the masks against the simulator's true silhouettes
   (recall, precision, where the misses and the false foreground are), today's default
   against MOG2 alone; ``--hull`` adds the hull carved from each (k = 0 and 1).
+- ``smartroom bench accuracy --seeds A:B``: the whole pipeline on random scenes (rendered
+  once into the cache), scored against their ground truth: MOTA, IDF1, MOTP, MMTA, MMTP,
+  MPJPE per scene, mean and worst, detection by stature band and activity, phantoms
+  (:mod:`app.benchmarks.accuracy`; tune on seeds below 1000, report on 1000 and up).
 - ``smartroom bench pose``: ms per frame of APF 600x6, SHBM-APF and DDM-APF at model
   densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
   ``--replay RUN --recording DIR --pose-seeds N``: the pose stage again over a run's own
@@ -27,7 +31,7 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy")
 
 
 def add_arguments(p) -> None:
@@ -67,6 +71,12 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
     p.add_argument("--pose-surface", action="store_true",
                    help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
+    p.add_argument("--seeds", default="1000:1020",
+                   help="accuracy: random scenes A:B (A to B-1) or a list; tune below 1000, report 1000 and up "
+                        "(default 1000:1020)")
+    p.add_argument("--smartroom", metavar="CMD",
+                   help="accuracy: the command line of another build to run the pipeline with (an A/B: e.g. "
+                        "'/path/old/.venv/bin/python -m app.cli'); default this build")
     p.add_argument("--replay", metavar="RUN",
                    help="pose: the pose stage again over the voxels of RUN (smartroom run ... --set "
                         "recorder.voxels=true) with its pose parameters and --pose-set overrides, once per seed of "
@@ -293,10 +303,28 @@ def _segmentation(args, out: Path) -> dict:
     return result
 
 
+def _accuracy(args, out: Path) -> dict:
+    from app.benchmarks.accuracy import bench_accuracy, command_line, format_report, parse_seeds
+    from app.simulation.random_scene import RANDOM_SECONDS
+
+    seeds = parse_seeds(args.seeds)
+    extra = (["--layout", str(Path(args.layout).resolve())] if args.layout else [])
+    extra += (["--config", str(Path(args.config).resolve())] if args.config else [])
+    for item in args.set:
+        extra += ["--set", item]
+    resolve_layout(args)   # a bad layout or --set is one line here, not once per scene
+    seconds = RANDOM_SECONDS if args.seconds == 10.0 else args.seconds   # 10: the option's default
+    print(f"smartroom bench accuracy: seeds {args.seeds}, {seconds:g} s each; runs in {out}", file=sys.stderr)
+    result = bench_accuracy(seeds, out, seconds, extra, command_line(args.smartroom),
+                            progress=lambda line: print(line, file=sys.stderr, flush=True))
+    print(format_report(result["rows"], result["aggregate"]))
+    return result
+
+
 def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
-               "segmentation": _segmentation}[args.target](args, out)
+               "segmentation": _segmentation, "accuracy": _accuracy}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0

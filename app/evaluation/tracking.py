@@ -38,6 +38,8 @@ class TrackingScore:
     gt_ids: int = 0
     hyp_ids: int = 0
     per_frame: list = field(default_factory=list, repr=False)
+    #: frame -> {true id: hypothesis id} of the frame's matches (who was found, by which track)
+    matched: dict = field(default_factory=dict, repr=False)
 
     @property
     def motp_mm(self) -> float:
@@ -150,6 +152,7 @@ def score_tracking(truth: dict, results: dict, gate: float = GATE_M, frames=None
         s.misses += len(gid) - len(matched)
         s.false_positives += len(hid) - len(matched)
         s.per_frame.append((f, len(gid), len(hid), len(matched)))
+        s.matched[f] = {int(gid[i]): int(hid[j]) for i, j in matched.items()}
     s.idtp = _idtp(pair_hits)
     s.gt_ids, s.hyp_ids = len(gt_seen), len(hyp_seen)
     return s
