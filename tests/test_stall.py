@@ -13,7 +13,7 @@ from tests.conftest import start_smartroom
 
 pytestmark = pytest.mark.integration
 
-STALL_S = 4.0
+STALL_S = 8.0
 ENDS_WITHIN_S = STALL_S + 5.0
 
 
@@ -84,6 +84,7 @@ def test_a_remote_stage_that_never_delivers_ends_the_run_with_the_reason(tmp_pat
     took_in = worker_err.first("mute: took frame 0 in")   # frames 0-1 went; frame 2 waits from here on
     assert took_in is not None, worker_err.text()
     assert rc == 1, err.text()
+    print(f"ended {ended - took_in:.1f} s after frame 0 went in (stall_timeout_s {STALL_S:g})")
     assert ended - took_in <= ENDS_WITHIN_S, (ended - took_in, err.text())
     lines = [line for line in err.text().splitlines() if "stalled" in line and "incomplete" in line]
     assert lines and "frame 2" in lines[0] and "segmentation" in lines[0], err.text()
@@ -93,9 +94,10 @@ def test_a_remote_stage_that_never_delivers_ends_the_run_with_the_reason(tmp_pat
 
 def test_a_worker_that_never_comes_on_the_bus_ends_the_run_with_the_reason(tmp_path):
     rc, err, _, ended, stats, out = _run(tmp_path, "segmentation", remote=False)
-    waits = err.first("waits for segmentation to be on the bus")   # said once the others are there
+    waits = err.first("to be on the bus")   # said after ready_timeout (1 s), while the others come up
     assert waits is not None, err.text()
     assert rc == 1, err.text()
+    print(f"ended {ended - waits:.1f} s after the first wait was said (stall_timeout_s {STALL_S:g})")
     assert ended - waits <= ENDS_WITHIN_S, (ended - waits, err.text())
     reason = next(r for r in stats["reasons"] if "stalled" in r)
     assert "segmentation (host camera-pc)" in reason and "frame 0" in reason
