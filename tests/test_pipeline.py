@@ -125,12 +125,11 @@ def test_crashed_worker_is_restarted_and_the_run_still_ends(long_recording, tmp_
     proc = start_smartroom("run", "--recording", long_recording, "--headless", "--out", out,
                            "--layout", spine_layout)
     pid = None
-    for _ in range(200):
-        if (out / "stats.json").is_file():
-            w = _stats(out)["workers"].get("segmentation")
-            if w and w["frames_out"] > 10:
-                pid = w["pid"]
-                break
+    for _ in range(1200):   # until frames flow (start-up takes longer on a loaded machine)
+        w = _stats_now(out).get("workers", {}).get("segmentation")
+        if w and w["frames_out"] > 10:
+            pid = w["pid"]
+            break
         time.sleep(0.05)
     assert pid is not None
     os.kill(pid, signal.SIGKILL)

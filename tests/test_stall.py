@@ -17,8 +17,8 @@ STALL_S = 8.0
 ENDS_WITHIN_S = STALL_S + 5.0
 
 
-def _layout(path: Path, segmentation_kind: str) -> Path:
-    doc = {"room": "stall", "bus": {"listen": ["tcp/127.0.0.1:0"]},
+def _layout(path: Path, segmentation_kind: str, port: int = 0) -> Path:
+    doc = {"room": "stall", "bus": {"listen": [f"tcp/127.0.0.1:{port}"]},
            "workers": [{"name": "grabber", "kind": "grabber",
                         "params": {"stall_timeout_s": STALL_S, "ready_timeout": 1.0}},
                        {"name": "segmentation", "kind": segmentation_kind, "host": "camera-pc"},
@@ -49,20 +49,21 @@ class Lines:
 
 
 def _run(tmp_path, kind: str, remote: bool):
-    layout = _layout(tmp_path / "layout.yaml", kind)
-    out = tmp_path / "out"
-    proc = start_smartroom("run", "--recording", _recording(tmp_path), "--headless", "--layout", layout,
+    """The run; with ``remote``, the camera host's segmentation is started first (as a
+    camera PC booted before the processing PC: it waits for the hub), so that it is on
+    the bus before the flow control starts counting, however long it takes to load."""
+    from app.bus import free_port
+    layout = _layout(tmp_path / "layout.yaml", kind, port=free_port() if remote else 0)
+    out, recording = tmp_path / "out", _recording(tmp_path)
+    worker = worker_err = None
+    if remote:
+        worker = start_smartroom("worker", "segmentation", "--layout", layout, "--recording", recording,
+                                 "--out", out)
+        worker_err = Lines(worker.stderr)
+    proc = start_smartroom("run", "--recording", recording, "--headless", "--layout", layout,
                            "--out", out, "--no-pace")
     err = Lines(proc.stderr)
-    worker = worker_err = None
     try:
-        if remote:
-            for _ in range(400):
-                if (out / "layout.yaml").is_file():
-                    break
-                time.sleep(0.05)
-            worker = start_smartroom("worker", "segmentation", "--layout", out / "layout.yaml")
-            worker_err = Lines(worker.stderr)
         proc.wait(timeout=120)
         ended = time.monotonic()
     finally:

@@ -56,7 +56,7 @@ def main(args) -> int:
     try:
         worker = worker_class(spec.kind)(spec, layout)
         worker.early_signals = early
-        return worker.run()
+        return _exit(worker.run())
     except (InputError, Stalled) as exc:
         code = EXIT_STALLED if isinstance(exc, Stalled) else EXIT_INPUT
         written = False
@@ -73,8 +73,20 @@ def main(args) -> int:
         if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
             if not written:
                 print(f"smartroom: error: {exc}", file=sys.stderr)
-            return code
+            return _exit(code)
         if code == EXIT_STALLED:
             print(f"smartroom: {spec.name}: {exc}", file=sys.stderr)
-            return code
+            return _exit(code)
         raise
+
+
+def _exit(code: int) -> int:
+    """End the worker process now: its files are complete, its state saved and its zenoh
+    session closed by then (Worker.run), so the interpreter's teardown (a second or more
+    for numba's and zenoh's modules on a loaded machine) only delays the launcher, which
+    waits for every worker to be gone before a run ends."""
+    import logging
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
