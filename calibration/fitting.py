@@ -33,6 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
+import cv2
 import numpy as np
 
 from calibration.camera import Camera
@@ -97,8 +98,8 @@ def turn_direction(camera: Camera) -> tuple[int, str]:
 # -- the padding band ----------------------------------------------------------------------
 
 def _grey(frames) -> np.ndarray:
-    a = np.stack([np.asarray(f, dtype=np.float32) for f in frames])
-    return a.mean(axis=3) if a.ndim == 4 else a
+    return np.stack([(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if f.ndim == 3 else f).astype(np.float32)
+                     for f in frames])
 
 
 def _spread(grey: np.ndarray, row: int) -> float:
