@@ -23,7 +23,8 @@ from app.files import read_jsonl
 from calibration import Calibration, load_calibration, save_calibration
 
 __all__ = ["RecordingError", "Recording", "RecordingWriter", "SourceInfo", "VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS",
-           "recording_problem", "size_mismatches", "fps_mismatches"]
+           "recording_problem", "size_mismatch", "size_mismatches", "fps_mismatches", "find_source", "open_source",
+           "inspect_source"]
 
 VIDEO_EXTENSIONS = (".mp4", ".avi")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
@@ -110,15 +111,18 @@ class SourceInfo:
 FPS_TOLERANCE = 0.01
 
 
+def size_mismatch(info: SourceInfo, camera) -> str | None:
+    """The phrase for a camera whose frames differ in size from its calibration, or None."""
+    if tuple(info.size) == (camera.width, camera.height):
+        return None
+    return (f"{info.shown}: frame size {info.size[0]}x{info.size[1]} does not match calibration "
+            f"{camera.width}x{camera.height} of camera {camera.name}")
+
+
 def size_mismatches(calibration: Calibration, sources: dict) -> list[str]:
     """One phrase per camera whose frames differ in size from its calibration."""
-    out = []
-    for name, info in sources.items():
-        c = calibration.camera(name)
-        if tuple(info.size) != (c.width, c.height):
-            out.append(f"{info.shown}: frame size {info.size[0]}x{info.size[1]} does not match calibration "
-                       f"{c.width}x{c.height} of camera {name}")
-    return out
+    found = (size_mismatch(info, calibration.camera(name)) for name, info in sources.items())
+    return [s for s in found if s]
 
 
 def fps_mismatches(calibration: Calibration, sources: dict) -> list[str]:
@@ -136,8 +140,8 @@ def recording_problem(path: Path, calibration: Calibration, sources: dict) -> st
     mis-sized camera and every video at another frame rate named, with the fix), or None."""
     sizes = size_mismatches(calibration, sources)
     if sizes:
-        fix = (f"fix: smartroom calibrate fit --recording {path} --rescale (the video is the calibrated image "
-               "scaled) or --crop (the video is a window of it)")
+        fix = (f"fix: smartroom calibrate fit --recording {path} (it chooses rescale, crop or turn from the sizes "
+               "and says why; --rescale: the video is the calibrated image scaled, --crop: a window of it)")
         turned = [n for n, i in sources.items() if tuple(i.size) == (calibration.camera(n).height,
                                                                      calibration.camera(n).width)]
         if turned:
@@ -155,6 +159,36 @@ def recording_problem(path: Path, calibration: Calibration, sources: dict) -> st
         if n != counts[first]:
             return f"{path / sources[name].shown}: {n} frames, but {first} has {counts[first]}"
     return None
+
+
+def find_source(root: Path, cam: str) -> tuple[str, Path] | None:
+    """``("video", videos/<cam>.mp4|.avi)`` or ``("frames", frames/<cam>)`` of a camera in a
+    recording folder (paths relative to it; a video first), or None."""
+    for ext in VIDEO_EXTENSIONS:
+        p = root / "videos" / f"{cam}{ext}"
+        if p.is_file():
+            return ("video", p.relative_to(root))
+    d = root / "frames" / cam
+    if d.is_dir():
+        return ("frames", d.relative_to(root))
+    return None
+
+
+def open_source(root: Path, kind: str, rel: Path, cam: str):
+    """A camera's frames (``read(index)``, ``close()``); a source that cannot be read raises
+    :class:`RecordingError` naming the file."""
+    if kind == "video":
+        return _VideoSource(root / rel, cam, root)
+    return _ImageSource(root / rel, cam, root)
+
+
+def inspect_source(root: Path, kind: str, rel: Path, cam: str) -> SourceInfo:
+    """What a camera's video (or image folder) holds: frame size, fps, frame count."""
+    src = open_source(root, kind, rel, cam)
+    try:
+        return SourceInfo(cam, src.shown, kind, src.size, src.fps, src.count)
+    finally:
+        src.close()
 
 
 class Recording:
@@ -178,29 +212,19 @@ class Recording:
         self.frame_count = min(counts.values())
 
     def _find_source(self, cam: str):
-        for ext in VIDEO_EXTENSIONS:
-            p = self.path / "videos" / f"{cam}{ext}"
-            if p.is_file():
-                return ("video", p.relative_to(self.path))
-        d = self.path / "frames" / cam
-        if d.is_dir():
-            return ("frames", d.relative_to(self.path))
-        raise RecordingError(f"{self.path}: camera {cam} has no videos/{cam}.mp4 (or .avi) and no frames/{cam}/ folder")
+        found = find_source(self.path, cam)
+        if found is None:
+            raise RecordingError(f"{self.path}: camera {cam} has no videos/{cam}.mp4 (or .avi) and no frames/{cam}/ "
+                                 "folder")
+        return found
 
     def _open(self, cam: str):
         kind, rel = self._sources[cam]
-        if kind == "video":
-            return _VideoSource(self.path / rel, cam, self.path)
-        return _ImageSource(self.path / rel, cam, self.path)
+        return open_source(self.path, kind, rel, cam)
 
     def inspect(self, cam: str) -> "SourceInfo":
         """What a camera's video (or image folder) holds: frame size, fps, frame count."""
-        src = self._open(cam)
-        try:
-            kind = "video" if isinstance(src, _VideoSource) else "frames"
-            return SourceInfo(cam, src.shown, kind, src.size, src.fps, src.count)
-        finally:
-            src.close()
+        return inspect_source(self.path, *self._sources[cam], cam)
 
     @property
     def cameras(self) -> list[str]:

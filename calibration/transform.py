@@ -1,5 +1,6 @@
 """The same camera seen through another image: turned by quarter turns, rescaled, or
-cropped (for videos whose size differs from the calibration's).
+cropped (for videos whose size differs from the calibration's; which one a video needs is
+decided in :mod:`calibration.fitting`).
 
 Pixel convention as in :mod:`calibration.camera`: the origin at the top-left pixel's
 centre. A clockwise quarter turn maps pixel ``(u, v)`` of a ``W x H`` image to
@@ -13,7 +14,7 @@ import numpy as np
 
 from calibration.camera import Camera
 
-__all__ = ["turned", "cropped", "rescaled", "fit_to_size"]
+__all__ = ["turned", "cropped", "rescaled"]
 
 _QUARTER = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
@@ -48,28 +49,3 @@ def cropped(camera: Camera, left: int, top: int, width: int, height: int) -> Cam
 def rescaled(camera: Camera, width: int, height: int) -> Camera:
     """The camera imaging the same field at ``width x height`` (see :meth:`Camera.scaled`)."""
     return camera.scaled(width, height)
-
-
-def fit_to_size(camera: Camera, width: int, height: int, mode: str, anchor: str = "topleft") -> tuple[Camera, str]:
-    """The camera fitted to a ``width x height`` video, and a sentence saying what was done.
-
-    ``mode``: ``rescale`` (the video is the calibrated image scaled: intrinsics scaled about
-    the image corner), ``crop`` (the video is a window of the calibrated image, or the image
-    padded: the principal point moves by the window's offset; ``anchor`` ``topleft`` as
-    encoders do when they drop the 8 padding rows of a 1088-row image, or ``centre``)."""
-    w0, h0 = camera.width, camera.height
-    if (w0, h0) == (width, height):
-        return camera, f"{camera.name}: already {width}x{height}, unchanged"
-    if mode == "rescale":
-        sx, sy = width / w0, height / h0
-        note = "" if abs(sx / sy - 1) < 0.01 else f" (aspect ratio changes by {100 * (sx / sy - 1):+.1f} %: is it a crop?)"
-        return rescaled(camera, width, height), (f"{camera.name}: rescaled {w0}x{h0} -> {width}x{height} "
-                                                 f"(x{sx:.4f}, x{sy:.4f}){note}")
-    if mode == "crop":
-        if anchor == "centre":
-            left, top = (w0 - width) // 2, (h0 - height) // 2
-        else:
-            left, top = 0, 0
-        return cropped(camera, left, top, width, height), (f"{camera.name}: cropped {w0}x{h0} -> {width}x{height} "
-                                                          f"at offset ({left}, {top}), principal point moved")
-    raise ValueError(f"unknown fit mode {mode!r}")

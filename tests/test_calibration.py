@@ -64,3 +64,32 @@ def test_missing_and_unparsable_files(tmp_path):
     p = _write(tmp_path, "fps: [1, 2\ncameras: {")
     with pytest.raises(CalibrationError, match=r"not valid YAML \(line \d+\)"):
         load_calibration(p)
+
+
+def test_check_lists_every_problem_at_once(tmp_path):
+    """The loader stops at the first bad field (a run needs no more); ``check_calibration``
+    (``smartroom calibrate check``) lists them all, with what parses but cannot be right."""
+    from calibration.validate import check_calibration
+
+    d = tiny_calibration(5).to_dict()
+    d["fps"] = 0
+    d["cameras"][0].pop("K")
+    d["cameras"][1]["R"] = (-np.array(d["cameras"][1]["R"])).tolist()
+    d["cameras"][2]["K"][0][2] = 900.0           # a principal point for a larger image
+    d["cameras"][3]["K"][0][0] = d["cameras"][3]["K"][1][1] = 2.0  # a focal length in millimetres
+    d["cameras"][4]["t"] = (-np.array(d["cameras"][4]["t"])).tolist()  # the centre mirrored through the origin
+    p = _write(tmp_path, d)
+    checked = check_calibration(p)
+    expected = [f"{p}: fps must be a positive number, got 0",
+                f"{p}: camera cam0: K is missing",
+                f"{p}: camera cam1: R is not a rotation (det -1.0)",
+                f"{p}: camera cam2: principal point (900.0, 59.5) lies outside its 160x120 image",
+                f"{p}: camera cam3: fx 2 px gives a 177 degree field of view",
+                f"{p}: camera cam4: the camera is 2.40 m under the floor"]
+    for line in expected:
+        assert sum(q.startswith(line) for q in checked.problems) == 1, (line, checked.problems)
+    assert all("\n" not in q for q in checked.problems)
+    assert checked.names == ["cam0", "cam1", "cam2", "cam3", "cam4"]
+    assert [c.name for c in checked.cameras] == ["cam2", "cam3", "cam4"] and checked.calibration.fps == 0
+    save_calibration(tiny_calibration(3), tmp_path / "ok.yaml")
+    assert check_calibration(tmp_path / "ok.yaml").problems == []

@@ -292,3 +292,49 @@ def test_negative_room_bounds_and_bad_room(tmp_path):
     r = smartroom("calibrate", "import", tmp_path / "c.yaml", "--format", "smartroom", "--out", tmp_path / "d.yaml",
                   "--room", "-3,-1.5,0,3,-2,2.5")
     assert r.returncode == 2 and "each max must exceed its min" in r.stderr
+
+
+def _video(path, fps, frames=3, size=(160, 120)):
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), float(fps), size)
+    for i in range(frames):
+        w.write(np.full((size[1], size[0], 3), 40 * i, np.uint8))
+    w.release()
+
+
+def test_import_takes_the_fps_from_the_recordings_videos(tmp_path):
+    """A calibration with no frame rate (TOML), imported for a recording at 30 fps: the
+    videos' fps is taken; videos that disagree are named on one line; image folders carry
+    no fps, so --fps is asked for; --fps still wins, with a note when the videos differ."""
+    from tests.synthetic import write_tiny_recording
+
+    rec = write_tiny_recording(tmp_path / "rec", frames=3, fps=30.0, background=False)
+    write_toml(list(load_calibration(rec).cameras), tmp_path / "Calib.toml")
+    out = tmp_path / "calibration.yaml"
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--recording", rec, "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert f"fps 30 from the videos of {rec} (videos/cam0.avi, videos/cam1.avi)" in r.stdout
+    assert "25 assumed" not in r.stdout and load_calibration(out).fps == 30
+    # a renamed camera has no video: said, with the fix
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--recording", rec, "--out", out,
+                  "--rename", "cam1=side")
+    assert r.returncode == 0 and "note: side has no video in" in r.stdout and "--rename OLD=NEW" in r.stdout
+    # --fps is the user's word; a mismatch with the videos is noted
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--recording", rec, "--out", out, "--fps", 25)
+    assert r.returncode == 0 and load_calibration(out).fps == 25
+    assert f"note: --fps 25 given, but the videos of {rec} are 30 fps" in r.stdout
+    # the videos disagree: one line naming them
+    _video(rec / "videos" / "cam1.avi", 25)
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--recording", rec, "--out", tmp_path / "x.yaml")
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("smartroom: error:")]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr
+    assert f"{rec / 'videos'}: the videos disagree on their frame rate: cam0.avi 30, cam1.avi 25 fps; give --fps" \
+        in lines[0]
+    # image folders: no fps to take
+    (tmp_path / "images" / "frames" / "cam0").mkdir(parents=True)
+    cv2.imwrite(str(tmp_path / "images" / "frames" / "cam0" / "000000.png"), np.zeros((120, 160, 3), np.uint8))
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--recording", tmp_path / "images", "--out",
+                  tmp_path / "x.yaml")
+    assert r.returncode == 2 and "frames: image folders carry no frame rate: give --fps" in r.stderr
+    # no recording: 25 assumed, as before, and the way to do better said
+    r = smartroom("calibrate", "import", tmp_path / "Calib.toml", "--out", tmp_path / "x.yaml")
+    assert r.returncode == 0 and "fps 25 assumed" in r.stdout and "--recording DIR" in r.stdout

@@ -1,5 +1,6 @@
 """Recording checks: fps against every video, every mis-sized camera named with the fix,
-``calibrate fit`` and ``calibrate check --recording`` (figures and the drawn check), and
+``calibrate fit`` (turn, rescale or crop chosen per camera) and ``calibrate check
+--recording`` (every problem at once, figures and the drawn check), and
 cameras of different sizes, portrait ones and 60 fps through the whole pipeline."""
 import json
 import shutil
@@ -9,12 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
-from app.recording import Recording, RecordingError
-from calibration import Calibration, load_calibration
+from app.recording import Recording, RecordingError, RecordingWriter
+from calibration import Calibration, load_calibration, save_calibration
 from calibration.overlay import AXES, draw_calibration
-from calibration.transform import turned
+from calibration.transform import cropped, turned
 from tests.conftest import smartroom
-from tests.synthetic import write_tiny_recording
+from tests.synthetic import tiny_calibration, write_tiny_recording
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +80,111 @@ def test_every_mis_sized_camera_is_named_and_fit_fixes_it(three_cams, tmp_path):
     assert r.returncode == 0 and "cam1: cropped 160x128 -> 160x120 at offset (0, 0)" in r.stdout
     c = load_calibration(tmp_path / "cropped.yaml").camera("cam1")
     assert (c.width, c.height) == (160, 120) and c.K[0, 0] == load_calibration(rec2).camera("cam1").K[0, 0]
+
+
+POINTS = np.array([[2.0, 2.0, 1.7], [1.5, 2.5, 0.3], [2.5, 1.6, 1.0], [2.0, 2.4, 0.0]])
+
+
+def _same_projection(got, truth):
+    for a, b in zip(got.cameras, truth.cameras):
+        assert (a.width, a.height) == (b.width, b.height), a.name
+        assert np.abs(a.project(POINTS) - b.project(POINTS)).max() < 1e-6, a.name
+
+
+def test_fit_chooses_turn_rescale_or_crop_per_camera_and_says_why(tmp_path):
+    """Four videos of 160x120 under a calibration made for other sizes: twice as large
+    (rescale), 8 codec rows longer (crop: the bottom by convention, or --crop centre), on
+    its side (turn, the direction that stands the room upright). No option given; one line
+    per camera; the fitted cameras project as the videos' own."""
+    rec = write_tiny_recording(tmp_path / "r", frames=4, n_cameras=4, background=False)
+    truth = load_calibration(rec)
+    c = truth.cameras
+    made = [c[0].scaled(320, 240), cropped(c[1], 0, 0, 160, 128), turned(c[2], 90), c[3]]
+    save_calibration(Calibration(truth.fps, truth.room_min, truth.room_max, tuple(made)), rec / "calibration.yaml")
+    shutil.copytree(rec, tmp_path / "centred")
+    r = smartroom("calibrate", "fit", "--recording", rec)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == ("cam0: rescaled 320x240 -> 160x120 (x0.5000, x0.5000: one factor for both sides, the same "
+                        "image scaled)")
+    assert lines[1].startswith("cam1: cropped 160x128 -> 160x120 at offset (0, 0), principal point kept: 8 rows "
+                               "fewer in the video, assumed at the bottom as codecs pad there")
+    assert lines[2].startswith("cam2: turned 270 degrees clockwise, 120x160 -> 160x120 (the video is landscape, the "
+                               "calibration not; it stands the room upright in the video; --turn 90 for the other way")
+    assert lines[3] == "cam3: 160x120, fits"
+    _same_projection(Recording(rec).calibration, truth)
+    # a video cut from the middle of the 128 rows: the user says so with --crop centre (a crop for every
+    # camera whose size differs, so here the only one that differs)
+    centred = (c[0], cropped(c[1], 0, -4, 160, 128), c[2], c[3])
+    save_calibration(Calibration(truth.fps, truth.room_min, truth.room_max, centred),
+                     tmp_path / "centred" / "calibration.yaml")
+    r = smartroom("calibrate", "fit", "--recording", tmp_path / "centred", "--crop", "centre", "--out",
+                  tmp_path / "centred.yaml")
+    assert r.returncode == 0, r.stderr
+    assert ("cam1: cropped 160x128 -> 160x120 at offset (0, 4), principal point moved by (0, -4) px: --crop given; "
+            "8 rows fewer in the video, centred as given") in r.stdout
+    _same_projection(load_calibration(tmp_path / "centred.yaml"), truth)
+    # sizes that say nothing: nothing written, the camera named with what to give
+    bad = _copy(tmp_path / "centred", tmp_path / "bad", cam3=(200, 120))
+    r = smartroom("calibrate", "fit", "--recording", bad)
+    assert r.returncode == 2 and "calibration.yaml: not changed: the sizes do not say how the videos of cam3" in r.stderr
+    assert not (bad / "calibration.yaml.orig").exists()
+
+
+def test_fit_finds_the_padding_band_in_a_larger_video(tmp_path):
+    """Videos of 160x128 (black rows at the top of one, split on the other) under a
+    160x120 calibration: the band in the frames says where the picture is."""
+    truth = tiny_calibration(2, 160, 128)
+    calib = Calibration(truth.fps, truth.room_min, truth.room_max,
+                        (cropped(truth.cameras[0], 0, 8, 160, 120), cropped(truth.cameras[1], 0, 4, 160, 120)))
+    rng = np.random.default_rng(2)
+    with RecordingWriter(tmp_path / "r", truth, codec="MJPG") as w:
+        for i in range(4):
+            images = {}
+            for cam, top in (("cam0", 8), ("cam1", 4)):
+                img = np.zeros((128, 160, 3), np.uint8)
+                noise = rng.integers(0, 255, (20, 27, 3), dtype=np.uint8)
+                img[top:top + 120] = cv2.resize(noise, (160, 120), interpolation=cv2.INTER_LINEAR)
+                images[cam] = img
+            w.write(images)
+    save_calibration(calib, tmp_path / "r" / "calibration.yaml")
+    r = smartroom("calibrate", "fit", "--recording", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    assert ("cam0: padded 160x120 -> 160x128 at offset (0, -8), principal point moved by (0, 8) px: 8 rows more "
+            "in the video, at the top: a band of 8 rows of one colour at the top of the video") in r.stdout
+    assert "cam1: padded 160x120 -> 160x128 at offset (0, -4)" in r.stdout and "split top and bottom" in r.stdout
+    _same_projection(load_calibration(tmp_path / "r"), truth)
+
+
+def test_check_lists_every_problem_at_once(three_cams, tmp_path):
+    """A recording with many things wrong: every one on its own line naming the file and
+    the camera, the fixes, the count, exit 1; the cameras that can be drawn are drawn."""
+    rec = _copy(three_cams, tmp_path / "r", fps=30, cam0=(320, 240))
+    doc = yaml.safe_load((rec / "calibration.yaml").read_text())
+    doc["cameras"][2]["K"][0][2] = 900.0
+    doc["cameras"].append(dict(doc["cameras"][1], name="cam3"))
+    (rec / "calibration.yaml").write_text(yaml.safe_dump(doc))
+    (rec / "videos" / "cam1.avi").unlink()
+    (rec / "videos" / "cam3.mp4").write_bytes(b"not a video")
+    shutil.copy(rec / "videos" / "cam2.avi", rec / "videos" / "cam7.avi")
+    r = smartroom("calibrate", "check", "--recording", rec, "--out", tmp_path / "check")
+    assert r.returncode == 1, r.stdout + r.stderr
+    problems = [ln[len("problem: "):] for ln in r.stdout.splitlines() if ln.startswith("problem: ")]
+    expected = [f"{rec / 'calibration.yaml'}: camera cam2: principal point (900.0, 59.5) lies outside its 160x120",
+                "videos/cam7.avi: no camera cam7 in the calibration (cameras: cam0, cam1, cam2, cam3)",
+                "videos/cam3.mp4: cannot be opened as a video (camera cam3)",
+                f"{rec}: camera cam1 has no videos/cam1.mp4 (or .avi) and no frames/cam1/ folder",
+                "videos/cam0.avi: frame size 160x120 does not match calibration 320x240 of camera cam0",
+                f"videos/cam0.avi: 25 fps, but {rec / 'calibration.yaml'} says fps 30 (camera cam0)",
+                f"videos/cam2.avi: 25 fps, but {rec / 'calibration.yaml'} says fps 30 (camera cam2)",
+                "background/cam0.png: size 160x120 does not match calibration 320x240 of camera cam0"]
+    for line in expected:
+        assert sum(p.startswith(line) for p in problems) == 1, (line, problems)
+    assert len(problems) == len(expected) + 1  # cam2 with its principal point off sees none of the room either
+    assert f"{len(problems)} problems found" in r.stdout
+    assert f"fix the sizes: smartroom calibrate fit --recording {rec}" in r.stdout
+    assert f"fix the frame rate: set fps: 25 in {rec / 'calibration.yaml'}" in r.stdout
+    assert sorted(p.name for p in (tmp_path / "check").iterdir()) == ["check-cam0.png", "check-cam2.png", "check.png"]
 
 
 def test_check_recording_draws_the_calibration_and_prints_figures(three_cams, tmp_path):

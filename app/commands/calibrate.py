@@ -3,17 +3,21 @@
 - ``check FILE`` / ``check --recording DIR [--out DIR]``: validate and summarise; with a
   recording, compare each camera with its video (size, fps), draw the room box, world axes
   and floor grid on a frame of every camera (``check-<cam>.png`` and ``check.png``, a
-  contact sheet), and print per-camera figures.
+  contact sheet), and print per-camera figures. Every problem is listed (one line each,
+  naming the file and the camera), then the exit code is 1 if there was any.
 - ``intrinsics --images GLOB | --video FILE --board SPEC``: K and distortion from views of
   a chessboard or ChArUco board (``cv2.calibrateCamera``), RMS reprojection error.
 - ``extrinsics --intrinsics FILE... (--floor CAM=IMAGE... --board SPEC | --points FILE)``:
   each camera's pose from a board on the floor (the world: origin at the board, z up) or
   from known 3D points; ``--moved CAM=GLOB`` adds views of the board elsewhere for a joint
   refinement of all cameras.
-- ``import FILE... [--format F] --out calibration.yaml``: from OpenCV, Qualisys QTM,
-  Pose2Sim/Anipose/FreeMoCap/Caliscope TOML, EasyMocap, Vicon, HumanEva-I.
+- ``import FILE... [--format F] [--recording DIR] --out calibration.yaml``: from OpenCV,
+  Qualisys QTM, Pose2Sim/Anipose/FreeMoCap/Caliscope TOML, EasyMocap, Vicon, HumanEva-I;
+  with ``--recording`` the fps is the videos'.
 - ``export FILE --format opencv|toml --out PATH``.
-- ``fit --recording DIR --rescale|--crop|--turn DEG``: fit the intrinsics to the videos.
+- ``fit --recording DIR [--rescale|--crop [bottom|top|centre]] [--turn DEG]``: fit the
+  intrinsics to the videos, turn, rescale or crop chosen per camera from the sizes
+  (:mod:`calibration.fitting`) unless given, one line per camera saying what and why.
 - ``import-opencv CAM=FILE... --out FILE --fps F --room=...``: the first importer, kept.
 
 Room bounds (``--room=xmin,ymin,zmin,xmax,ymax,zmax``, negative values fine) are estimated
@@ -76,7 +80,11 @@ def add_arguments(p) -> None:
     m.add_argument("files", nargs="+", metavar="FILE", help="the file(s); CAM=FILE names a one-camera file's camera")
     m.add_argument("--format", help="opencv, toml, qualisys, easymocap, vicon, humaneva (guessed when omitted)")
     m.add_argument("--out", required=True, help="calibration.yaml to write")
-    m.add_argument("--fps", type=float, help="frame rate (default: the file's, else 25)")
+    m.add_argument("--fps", type=float, help="frame rate (default: the videos' with --recording, else the file's, "
+                                              "else 25)")
+    m.add_argument("--recording", metavar="DIR",
+                   help="the recording folder the calibration is for: its videos give the fps, its camera names "
+                        "are compared with the imported ones")
     m.add_argument("--units", default="auto", help="length unit of translations: m, cm, mm or auto (default)")
     m.add_argument("--size", metavar="WxH", help="image size, for formats that do not carry it")
     m.add_argument("--binning", type=int, default=1, help="Qualisys: sensor binning factor (default 1)")
@@ -90,15 +98,23 @@ def add_arguments(p) -> None:
     x.add_argument("--format", required=True, choices=("opencv", "toml"))
     x.add_argument("--out", required=True, help="toml: the file; opencv: a folder (one <cam>.yml per camera)")
 
-    f = sub.add_parser("fit", help="fit the intrinsics to the recording's video sizes")
+    f = sub.add_parser("fit", help="fit the intrinsics to the recording's video sizes (turn, rescale or crop, "
+                                   "chosen per camera from the sizes unless given)")
     f.add_argument("--recording", required=True)
-    how = f.add_mutually_exclusive_group(required=True)
-    how.add_argument("--rescale", action="store_true", help="the videos are the calibrated images scaled")
-    how.add_argument("--crop", action="store_true", help="the videos are a window of the calibrated images")
-    how.add_argument("--turn", type=int, metavar="DEG",
-                     help="the videos are the images turned clockwise (90, 270: the cameras whose videos are portrait "
-                          "where the calibration is landscape, or the reverse)")
-    f.add_argument("--anchor", choices=("topleft", "centre"), default="topleft", help="with --crop (default topleft)")
+    how = f.add_mutually_exclusive_group()
+    how.add_argument("--rescale", action="store_true", help="the videos are the calibrated images scaled (all cameras)")
+    how.add_argument("--crop", nargs="?", const="auto", choices=("bottom", "top", "centre", "right", "left", "auto"),
+                     metavar="WHERE",
+                     help="the videos are a window of the calibrated images, or the images padded (all cameras); "
+                          "WHERE the rows that differ are: bottom (or right; codec padding, the principal point "
+                          "stays), centre, top (or left); without WHERE, read from a band of one colour in the "
+                          "video or assumed, and said")
+    f.add_argument("--turn", type=int, metavar="DEG",
+                   help="the videos are the images turned clockwise: 90 or 270 for the cameras whose videos are "
+                        "portrait where the calibration is landscape, or the reverse (default: the turn that stands "
+                        "the room upright); 180 for every camera")
+    f.add_argument("--anchor", choices=("topleft", "centre"),
+                   help="with --crop, the older spelling: topleft = --crop bottom, centre = --crop centre")
     f.add_argument("--out", help="calibration to write (default: the recording's, the old one kept as .orig)")
 
     o = sub.add_parser("import-opencv", help="build calibration.yaml from OpenCV FileStorage files")
@@ -167,62 +183,102 @@ def _summary(calib) -> None:
 
 def _check(args) -> int:
     from app.errors import InputError
-    from calibration import load_calibration
+    from calibration.validate import check_calibration
 
     if args.recording:
         return _check_recording(args)
     if not args.file:
         raise InputError("calibrate check: give a calibration.yaml (or a recording folder), or --recording DIR")
-    _summary(load_calibration(args.file))
-    return 0
+    checked = check_calibration(args.file)
+    _usable_summary(checked)
+    return _problems(checked.problems)
+
+
+def _usable_summary(checked) -> None:
+    """The summary of what of a calibration is usable, and how much of it that is."""
+    if checked.calibration is not None:
+        _summary(checked.calibration)
+        if len(checked.cameras) < len(checked.names):
+            print(f"  ({len(checked.cameras)} of the {len(checked.names)} cameras usable; the problems follow)")
+
+
+def _problems(problems, hints=()) -> int:
+    """Print every problem (one line each) and the fixes; 1 if there was any."""
+    for p in problems:
+        print(f"problem: {p}")
+    if not problems:
+        print("no problems found")
+        return 0
+    for h in hints:
+        print(h)
+    print(f"{len(problems)} problem{'s' if len(problems) > 1 else ''} found")
+    return 1
+
+
+def _draw(cam, info, root, frame):
+    """A frame of the camera's source (None when it cannot be read)."""
+    from app.recording import RecordingError, find_source, open_source
+
+    try:
+        src = open_source(root, *find_source(root, cam.name), cam.name)
+    except RecordingError:
+        return None
+    try:
+        return src.read(min(max(frame, 0), max(info.count - 1, 0)))
+    finally:
+        src.close()
 
 
 def _check_recording(args) -> int:
     import cv2
 
-    from app.recording import Recording, fps_mismatches, size_mismatches
+    from app.recording_check import check_recording
+    from calibration.fitting import fit_camera
     from calibration.overlay import contact_sheet, draw_calibration, floor_coverage
     from calibration.transform import rescaled
 
-    rec = Recording(args.recording, check=False)
-    calib = rec.calibration
-    _summary(calib)
-    out = Path(args.out) if args.out else rec.path / "check"
-    out.mkdir(parents=True, exist_ok=True)
-    sheet = []
-    frame = min(max(args.frame, 0), max(rec.frame_count - 1, 0))
-    print(f"{'camera':<10} {'calibration':>12} {'video':>12} {'size':>6} {'fps':>12} {'height m':>9} "
-          f"{'floor seen':>10}")
-    for cam in calib.cameras:
-        info = rec.sources[cam.name]
-        src = rec._open(cam.name)
-        try:
-            img = src.read(frame)
-        finally:
-            src.close()
-        size_ok = tuple(info.size) == (cam.width, cam.height)
-        fps_txt = f"{info.fps:g}" if info.fps > 0 else "(images)"
-        fps_ok = info.fps <= 0 or abs(info.fps - calib.fps) <= 0.01 * calib.fps
-        drawn_cam = cam if size_ok else rescaled(cam, *info.size)
-        lines = [f"calib {cam.width}x{cam.height} video {info.size[0]}x{info.size[1]}"
-                 + ("" if size_ok else " MISMATCH (drawn rescaled)"),
-                 f"fps calib {calib.fps:g} video {fps_txt}" + ("" if fps_ok else " MISMATCH"),
-                 f"centre height {cam.centre[2]:.2f} m"]
-        drawn = draw_calibration(drawn_cam, img, calib.room_min, calib.room_max, args.grid, lines)
-        cv2.imwrite(str(out / f"check-{cam.name}.png"), drawn)
-        sheet.append(drawn)
-        cover = floor_coverage(cam, calib.room_min, calib.room_max)
-        print(f"{cam.name:<10} {f'{cam.width}x{cam.height}':>12} {f'{info.size[0]}x{info.size[1]}':>12} "
-              f"{'ok' if size_ok else 'WRONG':>6} {fps_txt + ('' if fps_ok else ' WRONG'):>12} "
-              f"{cam.centre[2]:>9.2f} {100 * cover:>9.0f}%")
-    cv2.imwrite(str(out / "check.png"), contact_sheet(sheet))
-    print(f"drawn on frame {frame}: {out / 'check.png'} and check-<camera>.png (room box yellow, floor grid "
-          f"{args.grid:g} m, axes x red y green z blue, 1 m)")
-    problems = size_mismatches(calib, rec.sources) + fps_mismatches(calib, rec.sources)
-    if rec.problem:
-        print(f"problem: {rec.problem}")
-        return 1
-    return 0 if not problems else 1
+    fc = check_recording(args.recording)
+    calib = fc.calibration.calibration  # the usable part of it
+    _usable_summary(fc.calibration)
+    drawable = [c for c in calib.cameras if c.name in fc.sources] if calib is not None else []
+    if drawable:
+        out = Path(args.out) if args.out else fc.path / "check"
+        out.mkdir(parents=True, exist_ok=True)
+        sheet = []
+        print(f"{'camera':<10} {'calibration':>12} {'video':>12} {'size':>6} {'fps':>12} {'height m':>9} "
+              f"{'floor seen':>10}")
+        for cam in drawable:
+            info = fc.sources[cam.name]
+            img = _draw(cam, info, fc.path, args.frame)
+            size_ok = tuple(info.size) == (cam.width, cam.height)
+            fps_txt = f"{info.fps:g}" if info.fps > 0 else "(images)"
+            fps_ok = info.fps <= 0 or abs(info.fps - calib.fps) <= 0.01 * calib.fps
+            drawn_cam, how = cam, ""
+            if not size_ok:  # drawn as fit would fit it
+                fitted = fit_camera(cam, *info.size, frames=(lambda: [img]) if img is not None else None)
+                drawn_cam, how = ((fitted.camera, " MISMATCH (drawn as fit would fit it)") if fitted.decided
+                                  else (rescaled(cam, *info.size), " MISMATCH (drawn rescaled)"))
+            lines = [f"calib {cam.width}x{cam.height} video {info.size[0]}x{info.size[1]}" + how,
+                     f"fps calib {calib.fps:g} video {fps_txt}" + ("" if fps_ok else " MISMATCH"),
+                     f"centre height {cam.centre[2]:.2f} m"]
+            drawn = draw_calibration(drawn_cam, img, calib.room_min, calib.room_max, args.grid, lines)
+            cv2.imwrite(str(out / f"check-{cam.name}.png"), drawn)
+            sheet.append(drawn)
+            cover = floor_coverage(cam, calib.room_min, calib.room_max)
+            print(f"{cam.name:<10} {f'{cam.width}x{cam.height}':>12} {f'{info.size[0]}x{info.size[1]}':>12} "
+                  f"{'ok' if size_ok else 'WRONG':>6} {fps_txt + ('' if fps_ok else ' WRONG'):>12} "
+                  f"{cam.centre[2]:>9.2f} {100 * cover:>9.0f}%")
+        cv2.imwrite(str(out / "check.png"), contact_sheet(sheet))
+        print(f"drawn on frame {args.frame}: {out / 'check.png'} and check-<camera>.png (room box yellow, floor grid "
+              f"{args.grid:g} m, axes x red y green z blue, 1 m)")
+    hints = []
+    if fc.sizes_wrong:
+        hints.append(f"fix the sizes: smartroom calibrate fit --recording {fc.path} (chooses turn, rescale or crop "
+                     f"for {', '.join(fc.sizes_wrong)} from the sizes and says why)")
+    rates = sorted({round(i.fps, 3) for i in fc.sources.values() if i.kind == "video" and i.fps > 0})
+    if calib is not None and len(rates) == 1 and abs(rates[0] - calib.fps) > 0.01 * calib.fps:
+        hints.append(f"fix the frame rate: set fps: {rates[0]:g} in {calib.path}")
+    return _problems(fc.problems, hints)
 
 
 def _intrinsics(args) -> int:
@@ -332,6 +388,38 @@ def _extrinsics(args) -> int:
     return 0
 
 
+def _import_fps(args, file_fps) -> float:
+    """The recording's frame rate: ``--fps``, else the videos' (``--recording``), else the
+    file's, else 25; every choice printed."""
+    from app.errors import InputError
+    from app.recording_check import recording_fps
+
+    if args.recording:
+        try:
+            fps, videos = recording_fps(args.recording)
+        except InputError:
+            if args.fps:
+                print(f"note: fps {args.fps:g} given; the videos of {args.recording} were not compared")
+                return args.fps
+            raise
+        shown = ", ".join(videos)
+        if args.fps:
+            if abs(args.fps - fps) > 0.01 * fps:
+                print(f"note: --fps {args.fps:g} given, but the videos of {args.recording} are {fps:g} fps "
+                      f"({shown}): a run on them stops on the mismatch")
+            return args.fps
+        print(f"fps {fps:g} from the videos of {args.recording} ({shown})"
+              + (f"; the file says {file_fps:g}" if file_fps and abs(file_fps - fps) > 0.01 * fps else ""))
+        return fps
+    if args.fps:
+        return args.fps
+    if file_fps:
+        return file_fps
+    print("note: fps 25 assumed (the file has none): give --fps, or --recording DIR to take the videos'; "
+          "`smartroom calibrate check --recording` compares")
+    return 25.0
+
+
 def _import(args) -> int:
     from app.errors import InputError
     from calibration import Camera
@@ -348,14 +436,25 @@ def _import(args) -> int:
         raise InputError(f"--rename: no camera {', '.join(renames)} in {args.files[0]}")
     for note in got.notes:
         print(f"note: {note}")
-    fps = args.fps or got.fps or 25.0
-    if not args.fps and not got.fps:
-        print("note: fps 25 assumed (the file has none): give --fps, `smartroom calibrate check --recording` compares")
+    fps = _import_fps(args, got.fps)
+    if args.recording:
+        _compare_names(cams, args.recording)
     lo, hi = _room(args.room, cams)
     calib = _save(cams, fps, lo, hi, args.out)
     print(f"imported {len(cams)} cameras from {', '.join(args.files)} ({fmt}) into {calib.path}")
     _summary(calib)
     return 0
+
+
+def _compare_names(cams, recording) -> None:
+    """A note when imported cameras have no video in the recording (``--rename`` fixes it)."""
+    from app.recording_check import folder_sources
+
+    have = folder_sources(Path(recording))
+    missing = [c.name for c in cams if c.name not in have]
+    if missing and have:
+        print(f"note: {', '.join(missing)} ha{'ve' if len(missing) > 1 else 's'} no video in {recording} "
+              f"(it has {', '.join(have)}): name them with --rename OLD=NEW")
 
 
 def _export(args) -> int:
@@ -380,31 +479,34 @@ def _fit(args) -> int:
 
     from app.errors import InputError
     from app.recording import Recording
-    from calibration.transform import fit_to_size, turned
+    from calibration.fitting import PLACEMENTS, fit_camera
 
+    if args.turn is not None and (args.turn % 90 or args.turn % 360 == 0):
+        raise InputError(f"--turn {args.turn}: must be 90, 180 or 270")
+    placement = PLACEMENTS[args.crop] if args.crop not in (None, "auto") else None
+    if args.anchor:
+        if placement and placement != PLACEMENTS[args.anchor]:
+            raise InputError(f"--anchor {args.anchor} and --crop {args.crop} disagree: give one")
+        placement = PLACEMENTS[args.anchor]
+    mode = "rescale" if args.rescale else "crop" if args.crop else None
     rec = Recording(args.recording, check=False)
     calib = rec.calibration
-    cams = []
+    cams, undecided = [], []
     for c in calib.cameras:
         w, h = rec.sources[c.name].size
-        if args.turn is not None:
-            if args.turn % 90:
-                raise InputError(f"--turn {args.turn}: must be 90, 180 or 270")
-            t = turned(c, args.turn)
-            if (c.width, c.height) != (w, h) and (t.width, t.height) == (w, h):  # only where turning fits
-                print(f"{c.name}: turned {args.turn} degrees clockwise, {c.width}x{c.height} -> {t.width}x{t.height}")
-                c = t
-        mode = "rescale" if args.rescale else "crop" if args.crop else None
-        if mode and (c.width, c.height) != (w, h):
-            c, said = fit_to_size(c, w, h, mode, args.anchor)
-            print(said)
-        elif (c.width, c.height) != (w, h):
-            print(f"warning: {c.name}: still {c.width}x{c.height} against a {w}x{h} video")
-        else:
-            print(f"{c.name}: {w}x{h}, fits")
-        cams.append(c)
+        fitted = fit_camera(c, w, h, mode, args.turn, placement, frames=lambda name=c.name: rec.sample(name, 5))
+        print(fitted.said)
+        if not fitted.decided:
+            undecided.append(c.name)
+        cams.append(fitted.camera)
+    if undecided:
+        raise InputError(f"{rec.path / 'calibration.yaml'}: not changed: the sizes do not say how the videos of "
+                         f"{', '.join(undecided)} were made; give --rescale or --crop [bottom|top|centre]")
     out = Path(args.out) if args.out else rec.path / "calibration.yaml"
     if not args.out:
+        if all(a is b for a, b in zip(cams, calib.cameras)):
+            print(f"every camera fits its video: {out} unchanged")
+            return 0
         shutil.copy2(rec.path / "calibration.yaml", rec.path / "calibration.yaml.orig")
         print(f"kept the old calibration as {rec.path / 'calibration.yaml.orig'}")
     saved = _save(cams, calib.fps, calib.room_min, calib.room_max, out)
