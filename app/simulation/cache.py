@@ -29,6 +29,9 @@ def cache_path(scene: str = "meeting3", seconds: float = DEFAULT_SECONDS, fps: f
     """Where the cached recording of these settings lives."""
     from app.simulation.render import RENDERER_VERSION
     name = f"{scene}-{seconds:g}s-{fps:g}fps-seed{int(seed)}{'-zenithal' if zenithal else ''}-v{RENDERER_VERSION}"
+    if scene == "random":   # a random scene is also what the generator drew from the seed
+        from app.simulation.random_scene import GENERATOR_VERSION
+        name += f"-g{GENERATOR_VERSION}"
     return cache_root() / name
 
 

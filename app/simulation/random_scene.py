@@ -43,7 +43,10 @@ from app.simulation.room import (DECOR_BOARD, DECOR_FLAT, DECOR_POSTER, DECOR_WI
                                  chair_boxes, room_look, table_boxes)
 from app.simulation.scenes import PersonSpec, Scene
 
-__all__ = ["RandomScene", "random_scene", "STATURE_RANGE", "RANDOM_SECONDS", "STYLES"]
+__all__ = ["RandomScene", "random_scene", "STATURE_RANGE", "RANDOM_SECONDS", "STYLES", "GENERATOR_VERSION"]
+
+#: Bumped whenever a seed draws another scene (cached recordings carry it).
+GENERATOR_VERSION = 1
 
 STATURE_RANGE = (1.45, 2.00)     # m, uniform: every band as often as any other
 RANDOM_SECONDS = 12.0            # a random scene's natural length
