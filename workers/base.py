@@ -38,17 +38,15 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.files import write_json
+from app.layout import Layout, WorkerSpec   # the layout's types, not its loader (which imports the workers)
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 from workers.restarts import Restarts
-
-if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
-    from app.config import Layout, WorkerSpec
 
 __all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
