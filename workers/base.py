@@ -314,6 +314,16 @@ class Worker(Restarts):
             time.sleep(0.02)
         return others - self.alive
 
+    def wait_until_ready(self, timeout: float) -> float:
+        """A live source before its first frame: :meth:`wait_for_others` at most ``timeout``,
+        then it starts without the missing ones (said in one line); the seconds waited.
+        Offline the flow control waits instead (:meth:`workers.flow.SourceFlow.ready`)."""
+        t0 = time.perf_counter()
+        missing = self.wait_for_others(timeout)
+        if missing:
+            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)), timeout)
+        return time.perf_counter() - t0
+
     def status(self, text: str) -> None:
         """Say what the worker is doing before frames flow (compiling kernels, building a
         background): shown by the monitor and the launcher's progress line."""
@@ -586,10 +596,14 @@ class Worker(Restarts):
         self._epoch = msg.epoch
 
     def _loop_source(self) -> None:
+        if not self.stopping:
+            self._source_again()
         while not self.stopping:
             t0 = time.perf_counter()
             self._idle = 0.0
             more = self.produce()
+            if more:
+                self.out_epoch = self._epoch
             if self._killed_after_handle:   # FAILPOINT_ENV
                 os.kill(os.getpid(), signal.SIGKILL)
             self.ledger.processed(time.perf_counter() - t0 - self._idle)
