@@ -16,89 +16,28 @@ A layout is YAML::
 The launcher adds a ``run`` section (recording, out, frames, pace, headless) and
 writes the resolved layout next to the results, so every worker and every later
 reader sees exactly what ran.
+
+The types it returns (:class:`Layout`, :class:`WorkerSpec`, :class:`RunSpec`,
+:class:`LayoutError`) are :mod:`app.layout`'s, which the worker base imports too: the
+loader imports the worker registry and the workers, never the other way round.
 """
 from __future__ import annotations
 
 import copy
-import os
-from dataclasses import MISSING, asdict, dataclass, field, fields
+from dataclasses import MISSING, fields
 from pathlib import Path
 
 import yaml
 
 from app.bus import BusConfig
 from app.bus_section import parse_bus
-from app.errors import InputError
-from app.files import read_yaml, write_atomic
+from app.files import read_yaml
+from app.layout import Layout, LayoutError, RunSpec, WorkerSpec
 
 __all__ = ["LayoutError", "WorkerSpec", "RunSpec", "Layout", "load_layout", "parse_layout",
            "default_layout_path", "load_overrides", "apply_overrides", "parse_assignment"]
 
 LAYOUTS_DIR = Path(__file__).resolve().parent.parent / "deploy" / "layouts"
-
-
-class LayoutError(InputError):
-    """A layout or parameter file is missing or malformed."""
-
-
-@dataclass
-class WorkerSpec:
-    name: str
-    kind: str
-    params: dict = field(default_factory=dict)
-    host: str = "local"
-    restart: bool = True
-
-    @property
-    def local(self) -> bool:
-        return self.host in ("local", "localhost", "127.0.0.1", os.uname().nodename)
-
-
-@dataclass
-class RunSpec:
-    """What the launcher was asked to do (not part of a layout file's own text)."""
-
-    recording: str | None = None
-    recording_id: str | None = None            # fingerprint of the recording (app.recording.fingerprint)
-    calibration: str | None = None             # calibration file (live cameras)
-    fps: float | None = None                   # the source's frame rate
-    out: str | None = None
-    frames: int | None = None
-    pace: bool = True
-    headless: bool = False
-    live: dict = field(default_factory=dict)   # live camera sources {camera: device or URL}
-    trace: bool = False                        # workers write per-frame timings to <out>/trace/
-
-
-@dataclass
-class Layout:
-    room: str
-    bus: BusConfig
-    workers: list[WorkerSpec]
-    run: RunSpec = field(default_factory=RunSpec)
-    path: str = "layout.yaml"
-    restarts: dict = field(default_factory=dict)   # the launcher's restart policy (see _restarts)
-
-    def worker(self, name: str) -> WorkerSpec:
-        for w in self.workers:
-            if w.name == name:
-                return w
-        raise LayoutError(f"{self.path}: no worker named {name!r} (have {', '.join(w.name for w in self.workers)})")
-
-    def to_dict(self) -> dict:
-        return {
-            "room": self.room,
-            "bus": asdict(self.bus),
-            "workers": [asdict(w) for w in self.workers],
-            "run": asdict(self.run),
-            **({"restarts": dict(self.restarts)} if self.restarts else {}),
-        }
-
-    def save(self, path) -> None:
-        write_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
-
-    def copy(self) -> "Layout":
-        return copy.deepcopy(self)
 
 
 def default_layout_path() -> Path:
@@ -163,6 +102,7 @@ def _coerce(value, default, where: str):
 def parse_layout(data, path: str = "layout.yaml") -> Layout:
     """Validate a parsed layout document against the registered worker kinds."""
     from workers import KINDS, is_kind, worker_class
+    from workers.base import Worker
 
     if not isinstance(data, dict):
         raise LayoutError(f"{path}: expected a mapping with room, bus and workers")
@@ -192,10 +132,11 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
                               "or module:Class)")
         try:
             cls = worker_class(kind)
-        except (ImportError, AttributeError, ValueError) as exc:
+        except (ImportError, AttributeError, ValueError, TypeError) as exc:
             raise LayoutError(f"{path}: worker {name}: cannot load kind {kind!r} ({exc})") from None
-        except TypeError as exc:   # not a Worker
-            raise LayoutError(f"{path}: worker {name}: kind {kind!r} {exc}") from None
+        if not (isinstance(cls, type) and issubclass(cls, Worker)):
+            raise LayoutError(f"{path}: worker {name}: kind {kind!r} is not a worker (a subclass of "
+                              "workers.base.Worker)")
 
         if name in names:
             raise LayoutError(f"{path}: worker name {name} appears more than once")

@@ -8,8 +8,8 @@ and closing removes speckle and fills pinholes.
 
 Beyond the thesis, each selectable (``SegmentationParams``; 0 = off, the thesis's
 MOG2 alone), measured against the simulator's true silhouettes with
-``smartroom bench segmentation`` (docs/benchmarks.md, "Masks against true
-silhouettes"):
+``smartroom bench segmentation`` (docs/benchmarks.md, "Segmentation"; what was
+tried: docs/history/segmentation.md):
 
 - ``shadow_floor``: dark shadows. MOG2 keeps as foreground the contact shadows at the
   feet, darker than its ``tau`` (0.5); pixels of the floor (:func:`floor_region`)

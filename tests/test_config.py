@@ -28,6 +28,7 @@ def _layout(workers, **extra):
     (_layout([{"name": "s", "kind": "segmentation"}], bus={"listen": "tcp/x"}), "bus.listen must be a list"),
     (_layout([{"name": "s", "kind": "segmentation"}], extra=1), "unknown section 'extra'"),
     ({"room": "a/b", "workers": [{"kind": "grabber"}]}, "room must be a plain word"),
+    (_layout([{"name": "w", "kind": "app.errors:InputError"}]), "kind 'app.errors:InputError' is not a worker"),
 ])
 def test_layout_errors(doc, message):
     with pytest.raises(LayoutError) as e:

@@ -44,6 +44,23 @@ def test_a_source_waits_for_the_slowest_acknowledging_stage():
     assert fc.blockers(6, EVERYONE, 100.0) != []
 
 
+def test_a_waiting_source_goes_on_when_the_slowest_stage_acknowledges():
+    import threading
+    import time
+
+    fc = control(clock=time.monotonic)
+    fc.start(0, EVERYONE)
+    for name in ("segmentation", "reconstruction"):
+        fc.acknowledge(name, 1, 1)
+    went = threading.Event()
+    source = threading.Thread(target=lambda: (fc.wait(3, lambda: EVERYONE, lambda: False), went.set()))
+    source.start()
+    assert not went.wait(0.3)                   # tracking has not finished frame 1
+    fc.acknowledge("tracking", 1, 1)            # from the bus's thread: wakes the source
+    assert went.wait(2.0)
+    source.join()
+
+
 def test_a_stage_that_is_away_pauses_the_source_and_is_waited_for_after_it_is_back():
     fc = control()
     fc.start(0, EVERYONE)

@@ -123,7 +123,7 @@ def test_pose_error_on_the_reconstructed_hull(hull_clip):
     """On the hull the thesis's likelihood lets the limbs wander inside the excess; with
     the coverage term, the floor prior and the IK arm proposals (app.pose.coverage,
     app.pose.detections) SHBM-APF and APF stay near their true-body figures
-    (docs/benchmarks.md, Pose: the ablation over 6 clips x 2 seeds; one short clip and
+    (docs/history/pose-likelihood.md: the ablation over 6 clips x 2 seeds; one short clip and
     one seed is too noisy to compare the variants here, so the figures are absolute)."""
     clip, cal = hull_clip
     body = sum(len(f.centres) for f in simulated_clip("gesture1", range(10, 12), 0.02)[0]) / 2

@@ -1,6 +1,6 @@
 """The pipeline's IAPF share (issue 11, round 2): the pose worker draws 35 % of the first
 annealing layer from the detections (0.2 before; through the pipeline 0.35 gains on
-gesture1, walk1 and meeting3, docs/benchmarks.md "Pipeline accuracy, round 2"): a filter
+gesture1, walk1 and meeting3, docs/history/pose-likelihood.md "Round 2"): a filter
 whose particles all sit in a wrong arm pose gets that share of them from the importance
 function, and with it finds the arm the data shows."""
 import numpy as np

@@ -36,7 +36,7 @@ def test_stance_penalty_holds_upright_legs_only():
 def footless_clip():
     """gesture1 (standing, waving), 1 s at 2 cm, the visual hull (k = 0) of the true
     silhouettes: one camera sees the feet behind furniture, so the hull has no right foot
-    (docs/benchmarks.md, Pose on the reconstructed hull)."""
+    (docs/history/pose-likelihood.md, the thesis's likelihood on a visual hull)."""
     return simulated_clip("gesture1", range(0, 25), 0.02, source="hull", tolerance=0)
 
 

@@ -89,3 +89,25 @@ def test_masks_against_true_silhouettes(meeting_clip):
     assert now["recall"] >= before["recall"] - 0.005, (before, now)
     assert now["precision"] >= before["precision"] + 0.01, (before, now)
     assert now["false_shadow"] < 0.85 * before["false_shadow"], (before, now)
+
+
+@pytest.mark.parametrize("segmentation, size, scale", [
+    ([{"scale": 4}], (640, 480), 4),                                   # the colour follows the mask
+    ([{"scale": 4, "colour_scale": 2}], (640, 480), 2),
+    ([{"scale": 4, "colour_scale": 0}], (640, 480), 4),                # no colour sent
+    ([{"scale": 4, "cameras": ["c0"]}, {"scale": 2, "cameras": ["c1"]}], (640, 480), 2),
+    ([{"scale": 4}], (642, 480), 2),                                   # every camera's size divides too
+    ([{"scale": 3}], (640, 480), 1),
+    ([], (640, 480), 1),                                               # nobody reduces: full size
+])
+def test_frames_travel_as_small_as_every_segmentation_worker_allows(segmentation, size, scale):
+    from types import SimpleNamespace
+
+    from app.config import parse_layout
+    from workers.segmentation import frame_scale
+
+    layout = parse_layout({"room": "r", "workers": [
+        {"name": "grabber", "kind": "grabber"},
+        *({"name": f"seg{i}", "kind": "segmentation", "params": p} for i, p in enumerate(segmentation))]})
+    cameras = [SimpleNamespace(name=c, width=size[0], height=size[1]) for c in ("c0", "c1")]
+    assert frame_scale(layout, SimpleNamespace(cameras=cameras)) == scale

@@ -38,17 +38,15 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.files import write_json
+from app.layout import Layout, WorkerSpec   # the layout's types, not its loader (which imports the workers)
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 from workers.restarts import Restarts
-
-if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
-    from app.config import Layout, WorkerSpec
 
 __all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
@@ -315,6 +313,16 @@ class Worker(Restarts):
         while not others <= self.alive and time.monotonic() < deadline and not self.stopping:
             time.sleep(0.02)
         return others - self.alive
+
+    def wait_until_ready(self, timeout: float) -> float:
+        """A live source before its first frame: :meth:`wait_for_others` at most ``timeout``,
+        then it starts without the missing ones (said in one line); the seconds waited.
+        Offline the flow control waits instead (:meth:`workers.flow.SourceFlow.ready`)."""
+        t0 = time.perf_counter()
+        missing = self.wait_for_others(timeout)
+        if missing:
+            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)), timeout)
+        return time.perf_counter() - t0
 
     def status(self, text: str) -> None:
         """Say what the worker is doing before frames flow (compiling kernels, building a
@@ -588,10 +596,14 @@ class Worker(Restarts):
         self._epoch = msg.epoch
 
     def _loop_source(self) -> None:
+        if not self.stopping:
+            self._source_again()
         while not self.stopping:
             t0 = time.perf_counter()
             self._idle = 0.0
             more = self.produce()
+            if more:
+                self.out_epoch = self._epoch
             if self._killed_after_handle:   # FAILPOINT_ENV
                 os.kill(os.getpid(), signal.SIGKILL)
             self.ledger.processed(time.perf_counter() - t0 - self._idle)

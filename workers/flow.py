@@ -39,15 +39,13 @@ from __future__ import annotations
 import threading
 import time
 
-from app.admission import EPOCH_QUIET_S
 from app.errors import Stalled
 from workers.restarts import REPLAY_DELAY_S
 
-__all__ = ["FlowControl", "SourceFlow", "MISSING_WAIT_S", "RESUME_HOLD_S", "AGAIN_QUIET_S", "NOTE_PERIOD_S"]
+__all__ = ["FlowControl", "SourceFlow", "MISSING_WAIT_S", "RESUME_HOLD_S", "NOTE_PERIOD_S"]
 
 MISSING_WAIT_S = 60.0   # how long a crashed stage is waited for before frames go on without it
 RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # new frames wait this long after a worker is back from a crash
-AGAIN_QUIET_S = 4 * EPOCH_QUIET_S    # a restarted source: the new epoch waits this long after the frame sent again
 NOTE_PERIOD_S = 10.0    # how often a wait is said in the log
 SENDING_AGAIN = "workers sending frames again"
 

@@ -8,8 +8,10 @@ stage misses the start of the stream.
 Offline (a recording) the grabber never runs ahead of the pipeline: the spine's flow
 control (:mod:`workers.flow`) holds frame ``i`` until every stage has finished frame
 ``i - window`` and ends a stalled run with a reason; paced runs also keep the
-recording's clock. A restarted grabber carries on after the last frame it sent, in a
-new epoch. Live cameras are paced by the cameras themselves.
+recording's clock. Frames travel as small as the layout's segmentation allows
+(:func:`workers.segmentation.frame_scale`). A restarted grabber carries on after the last
+frame it sent, in a new epoch, after sending that frame again in its old one
+(:mod:`workers.restarts`). Live cameras are paced by the cameras themselves.
 """
 from __future__ import annotations
 
@@ -17,11 +19,10 @@ import time
 
 from app.errors import InputError
 from app.messages import Frame
-from app.recording import Recording
 from app.sources import LiveSource, RecordingSource
 from calibration import load_calibration
 from workers.base import Worker
-from workers.flow import AGAIN_QUIET_S, SourceFlow
+from workers.flow import SourceFlow
 
 
 class Grabber(Worker):
@@ -57,21 +58,24 @@ class Grabber(Worker):
             if not run.calibration:
                 raise InputError("live cameras need a calibration file (--calibration)")
             live = {c: s for c, s in run.live.items() if cams is None or c in cams}
-            left = None if run.frames is None else max(0, run.frames - (self._resume or 0))
+            left = None if run.frames is None else max(0, run.frames - (self.resume_at or 0))
             self.source = LiveSource(live, load_calibration(run.calibration), frames=left,
                                      stop=self.stop_event, open_timeout=self.params["open_timeout"],
-                                     lost_timeout=self.params["lost_timeout"], start=self._resume or 0)
+                                     lost_timeout=self.params["lost_timeout"], start=self.resume_at or 0)
             self.first = 0
         else:
             if not run.recording:
                 raise InputError("the grabber has no recording and no live cameras")
+            from workers.segmentation import frame_scale
+
             first = self.params["start"]
-            resume = max(first, self._resume) if self._resume is not None else first
-            total = RecordingSource(run.recording, cams, start=first, frames=run.frames).stop
-            self.scale = self._send_scale(Recording(run.recording).calibration)
+            resume = max(first, self.resume_at) if self.resume_at is not None else first
+            whole = RecordingSource(run.recording, cams, start=first, frames=run.frames)
+            total = whole.stop
+            self.scale = int(self.params["scale"]) or frame_scale(self.layout, whole.calibration)
             self.source = RecordingSource(run.recording, cams, start=min(resume, total - 1),
                                           frames=max(0, total - resume), skip_bad=self.params["skip_bad_frames"],
-                                          lost=self.lost, transform=self._reduce if self.scale > 1 else None)
+                                          lost=self.lost, transform=self._transform)
             self.first = first
             self.total = total - first
             if resume >= total:
@@ -81,98 +85,35 @@ class Grabber(Worker):
                                self.params["ready_timeout"]) if self.lossless else None
         self.t0 = None
 
-    def _send_scale(self, calib) -> int:
-        """How much smaller than the camera the frames may travel: the largest power of two
-        that divides every mask and colour scale of the layout's segmentation workers and
-        every camera's size (HD frames are 25 MB a set; the segmentation reduces them anyway)."""
-        from math import gcd
-
-        from workers import worker_class
-        from workers.segmentation import scales
-
-        if self.params["scale"]:
-            return int(self.params["scale"])
-        need = 0
-        for w in self.layout.workers:
-            if "mask" in worker_class(w.kind).PRODUCES:
-                mask, colour = scales(w, self.layout, calib)
-                need = gcd(need, mask)
-                if colour:
-                    need = gcd(need, colour)
-        scale = 1
-        while need and need % (scale * 2) == 0 and all(
-                c.width % (scale * 2) == 0 and c.height % (scale * 2) == 0 for c in calib.cameras):
-            scale *= 2
-        return scale
-
     def _reduce(self, camera: str, image):
         from app.segmentation import shrink
         return shrink(image, self.scale)
 
-    # -- across restarts -------------------------------------------------------------
-    _resume: int | None = None
+    @property
+    def _transform(self):
+        """What the decoding threads do to an image: reduce it to the send scale, if any."""
+        return self._reduce if self.scale > 1 else None
 
-    _out_epoch: int | None = None   # the epoch of the newest frame sent
-    _sent_again = False
-
-    def extra_state(self) -> dict:
-        return {"out_epoch": self._out_epoch}
-
-    def restore_state(self, state: dict) -> None:
-        """A restarted grabber carries on after the last frame it sent (its ledger, with
-        the journal, knows it exactly): a recording from there, live cameras with the
-        next frame number, so results never hold one frame number twice. On a recording
-        it first sends that last frame again in its own epoch (a grabber killed right after
-        handing it to the bus may not have sent it; the stages that had it skip it)."""
-        if self.ledger.newest_out >= 0:
-            self._resume = self.ledger.newest_out + 1
-            epoch = state.get("out_epoch")
-            if isinstance(epoch, int) and not isinstance(epoch, bool):
-                self._out_epoch = epoch
-
-    def _send_again(self) -> None:
-        """The last frame the earlier incarnation sent, in that incarnation's epoch."""
-        index = self.ledger.newest_out
-        again = RecordingSource(self.layout.run.recording, self.cameras(), start=index, frames=1,
-                                skip_bad=self.params["skip_bad_frames"],
-                                transform=self._reduce if self.scale > 1 else None)
+    def put_out_again(self, frame: int, epoch: int) -> None:
+        """After a restart, the last frame the earlier incarnation sent, in its epoch."""
+        again = RecordingSource(self.layout.run.recording, self.cameras(), start=frame, frames=1,
+                                skip_bad=self.params["skip_bad_frames"], transform=self._transform)
         for i, images in again.frames():
-            cameras = sorted(images)
-            for cam, image in images.items():
-                self.publish(self.keys.frame(cam), Frame(frame=i, stamp=time.time(), t=i / again.fps, camera=cam,
-                                                         cameras=cameras, image=image, epoch=self._out_epoch,
-                                                         scale=self.scale), counts=False)
+            self._send(i, images, time.time(), epoch, again.fps)
 
     @property
     def produced(self) -> int:
         return self.ledger.done.count
 
     # -- frames ------------------------------------------------------------------------
-    def _wait_until_ready(self) -> None:
-        """Until every other worker is on the bus: on a recording the flow control's rule
-        (nothing is sent past a stage that still loads; a stall ends the run), live at most
-        ``ready_timeout``, then without it."""
-        if self.flow is not None:
-            self._idle += self.flow.ready(self.source.start)
-            return
-        t0 = time.perf_counter()
-        missing = self.wait_for_others(self.params["ready_timeout"])
-        self._idle += time.perf_counter() - t0
-        if missing:
-            self.log.warning("starting without %s (not alive after %.0f s)", ", ".join(sorted(missing)),
-                             self.params["ready_timeout"])
-
     def produce(self) -> bool:
-        if self.incarnation > 0 and self._out_epoch is not None and self.lossless and not self._sent_again:
-            self._sent_again = True
-            self._send_again()
-            self.sleep(AGAIN_QUIET_S)   # the stages follow the new epoch once the old one is quiet
         if self.source is None:
             return False
         if self._frames is None:
             self._frames = iter(self.source.frames())
-            if self.incarnation == 0:
-                self._wait_until_ready()
+            if self.incarnation == 0:   # nothing is sent before every worker is on the bus
+                self._idle += (self.flow.ready(self.source.start) if self.flow is not None
+                               else self.wait_until_ready(self.params["ready_timeout"]))
         try:
             index, images = next(self._frames)
         except StopIteration:
@@ -185,14 +126,17 @@ class Grabber(Worker):
             return False
         stamp = time.time()
         self.ledger.received(index, stamp)
-        t = index / self.source.fps
+        self._send(index, images, stamp, self.epoch, self.source.fps)
+        self.ledger.emitted(index, stamp)   # sent once every camera's image is: a restart sends it again
+        return True
+
+    def _send(self, index: int, images: dict, stamp: float, epoch: int, fps: float) -> None:
+        """Every camera's image of frame ``index``, each with the frame set (the cameras sent)."""
         cameras = sorted(images)
         for cam, image in images.items():
-            self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=t, camera=cam, cameras=cameras,
-                                                     image=image, epoch=self.epoch, scale=self.scale), counts=False)
-        self.ledger.emitted(index, stamp)   # sent once every camera's image is: a restart sends it again
-        self._out_epoch = self.epoch
-        return True
+            self.publish(self.keys.frame(cam), Frame(frame=index, stamp=stamp, t=index / fps, camera=cam,
+                                                     cameras=cameras, image=image, epoch=epoch, scale=self.scale),
+                         counts=False)
 
     def _pace(self, index: int) -> None:
         """Sleep until the frame's time on the recording's clock. A lag of up to

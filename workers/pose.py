@@ -79,7 +79,8 @@ class Pose(Worker):
         "gamma_min": 20,
         "importance_fraction": 0.35,  # IAPF: first-layer particles drawn from the detections (0.2 before round 2 of
                                       # issue 11: through the pipeline 0.35 gains on gesture1, walk1 and meeting3;
-                                      # on true-body voxels, app.pose.estimator's 0.2 is better; docs/benchmarks.md)
+                                      # on true-body voxels, app.pose.estimator's 0.2 is better; docs/history/
+                                      # pose-likelihood.md)
         "coverage": 0.003,          # sigma^2 of the coverage term for fat hulls (app.pose.coverage); 0 = thesis
         "coverage_partial": True,   # coverage also on SHBM-APF's partial models
         "floor": 0.02,              # m: floor prior on the lower ankle; 0 = none (thesis)
@@ -92,7 +93,8 @@ class Pose(Worker):
         "stature": "axis",          # the blob's top for the stature: near the body axis, or top (anywhere; earlier)
         "stance": 0.03,             # m: ankles under the hips while the track stands still; 0 = off
         "ground": 0.01,             # m: no ankle below its standing height (with floor > 0); 0 = off (the offline
-                                    # core's default: on true-body voxels it costs gesture1 0.01; docs/benchmarks.md)
+                                    # core's default: on true-body voxels it costs gesture1 0.01;
+                                    # docs/history/pose-likelihood.md)
         "anchor": 0.05,             # m: deviation of the root beyond anchor_free from its track; 0 = off (meeting3
                                     # 3 seeds 0.822 -> 0.842: the door phantom; gesture1, walk1 identical)
         "anchor_free": 0.25,        # m
@@ -102,7 +104,7 @@ class Pose(Worker):
         "tolerant_near": 0.6,       # m: ... within this distance (floor plane) of a track
         "tolerant_views": 3,        # ... where at least this many cameras see them (frames of >= views + 1 cameras)
         "silhouette": 0.0005,       # sigma^2 of the silhouette term (the masks the voxels carry, app.pose.silhouette;
-                                    # walk1 2 cm MMTA 0.877 -> 0.92, meeting3 0.84 -> 0.86, docs/benchmarks.md);
+                                    # walk1 2 cm MMTA 0.877 -> 0.92, meeting3 0.84 -> 0.86, docs/benchmarks.md, Pose);
                                     # 0 = off (the thesis)
         "silhouette_density": 2.0,  # the model's points for the term on a lattice of this many voxel sizes (about a
                                     # pixel of the silhouettes the reconstruction sends)

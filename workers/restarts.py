@@ -17,6 +17,12 @@ The newest frame a restarted worker's earlier incarnation put out is put out aga
 journal says "out" when ``put()`` returns, and a worker killed then may not have sent it.
 It is worked on anew or, where the snapshot is of that very frame, sent from the outputs
 kept with the snapshot; consumers skip it if it had arrived.
+
+A restarted source (the grabber) carries on after the newest frame it put out
+(:attr:`Restarts.resume_at`), in a new epoch, so results never hold one frame number twice.
+Offline it first puts that frame out again in its earlier incarnation's epoch
+(:meth:`Restarts.put_out_again`), for the same reason, and its new epoch waits
+:data:`AGAIN_QUIET_S`: the stages follow a new epoch once the old one is quiet.
 """
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ import time
 from collections import deque
 from pathlib import Path
 
+from app.admission import EPOCH_QUIET_S
 from app.files import json_entry, read_json_entry, write_atomic, write_json
 from app.messages import Message
 from app.stats import FrameSet
@@ -33,6 +40,7 @@ from app.stats import FrameSet
 REPLAY_FRAMES = 16       # offline: a stage's outputs of its last frames, sent again to a consumer that restarted
 REPLAY_BYTES = 64 << 20  # ... at most this much of them (HD frames)
 REPLAY_DELAY_S = 0.2     # after a restarted consumer's token appears (its subscriptions are declared before)
+AGAIN_QUIET_S = 4 * EPOCH_QUIET_S   # a restarted source: its new epoch waits this long after the frame put out again
 #: tests only, ``<worker>:<frame>[,...]``: the first incarnation of ``<worker>`` keeps its output of
 #: ``<frame>`` off the bus (as if killed between ``put()`` and zenoh sending it) and is killed
 #: (SIGKILL) once it has handled that input
@@ -65,6 +73,7 @@ class Restarts:
         self._lose = int(lose[0]) if lose else None   # FAILPOINT_ENV
         self._killed_after_handle = False
         self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
+        self.out_epoch: int | None = None        # a source: the epoch of the newest frame it put out
 
     # -- the stage's state ------------------------------------------------------------
     def extra_state(self) -> dict:
@@ -217,6 +226,26 @@ class Restarts:
                     self._keep_for_replay(msg.frame, key, payload)
         self.log.warning("put out frame %d again from the state arrays (%d messages)", msg.frame, len(outputs))
 
+    # -- a source that restarted ------------------------------------------------------
+    @property
+    def resume_at(self) -> int | None:
+        """The frame a restarted source carries on from: the one after the newest it put out
+        (its ledger, with the journal, knows it exactly); None: it put out nothing yet."""
+        return self.ledger.newest_out + 1 if self.ledger.newest_out >= 0 else None
+
+    def put_out_again(self, frame: int, epoch: int) -> None:
+        """A source: put ``frame`` out again in ``epoch`` (its earlier incarnation's), see
+        :meth:`_source_again`. Default: nothing (a source that cannot read a frame again)."""
+
+    def _source_again(self) -> None:
+        """Offline, before a restarted source's first frame: the newest frame its earlier
+        incarnation put out, again in that incarnation's epoch (a source killed right after
+        handing it to the bus may not have sent it; the stages that had it skip it as a
+        repeat); then :data:`AGAIN_QUIET_S` for the stages to see the old epoch go quiet."""
+        if self.incarnation > 0 and self.out_epoch is not None and self.lossless:
+            self.put_out_again(self.ledger.newest_out, self.out_epoch)
+            self.sleep(AGAIN_QUIET_S)
+
     # -- the state files ------------------------------------------------------------
     def _state_path(self) -> Path | None:
         out = self.layout.run.out
@@ -232,7 +261,8 @@ class Restarts:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             write_json(path, {"incarnation": self.incarnation, "ledger": self.ledger.state(),
-                              "rejected": self.rejections.figures(), "stage": self.extra_state()}, indent=None)
+                              "rejected": self.rejections.figures(), "stage": self.extra_state(),
+                              "out_epoch": self.out_epoch}, indent=None)
             if self._journal_fd is None:
                 self._journal_fd = os.open(path.with_suffix(".frames"), os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
             os.ftruncate(self._journal_fd, 0)   # everything in it is in the state now
@@ -322,6 +352,9 @@ class Restarts:
         self.ledger.restore(state.get("ledger") or {}, journal)
         if self.ledger.newest_out >= 0 and self.PRODUCES:   # a sink's outputs are its files
             self._redo = self.ledger.newest_out
+            epoch = state.get("out_epoch")
+            if isinstance(epoch, int) and not isinstance(epoch, bool):
+                self.out_epoch = epoch
         self.rejections.restore(state.get("rejected"))
         self.ledger.bad_messages = self.rejections.total
         self.restore_state(state.get("stage") or {})

@@ -32,6 +32,28 @@ def scales(spec, layout, calibration) -> tuple[int, int]:
     return int(scale), int(scale if colour < 0 else colour)
 
 
+def frame_scale(layout, calibration) -> int:
+    """How much smaller than the camera a source may send the frames: the largest power of
+    two that divides every mask and colour scale of the layout's segmentation workers
+    (:func:`scales`) and every camera's width and height (HD frames are 25 MB a set; the
+    segmentation reduces them anyway). 1: full size."""
+    from math import gcd
+
+    from workers import producers_of
+
+    need = 0
+    for name in producers_of(layout, "mask"):
+        mask, colour = scales(layout.worker(name), layout, calibration)
+        need = gcd(need, mask)
+        if colour:
+            need = gcd(need, colour)
+    scale = 1
+    while need and need % (scale * 2) == 0 and all(
+            c.width % (scale * 2) == 0 and c.height % (scale * 2) == 0 for c in calibration.cameras):
+        scale *= 2
+    return scale
+
+
 class Segmentation(Worker):
     KIND = "segmentation"
     ORDER = 1

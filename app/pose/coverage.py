@@ -60,8 +60,8 @@ pulls the lower ankle down; nothing held an ankle up, and on the pipeline's hull
 swing leg's shin carved by one camera) the posed ankles went 3-5 cm into the floor
 (walk1: median 64 mm against the true 114 mm, 5 % under 38 mm where the true ones are
 never under 69 mm; meeting3 5 % under 13 mm). Through the pipeline, 0.01 m: MMTP walk1
-40-42 -> 36-39 mm, meeting3 43-45 -> 40-41 mm, MMTA meeting3 +0.02 (docs/benchmarks.md,
-"Pipeline accuracy, round 2"); 0 switches it off (the thesis has none).
+40-42 -> 36-39 mm, meeting3 43-45 -> 40-41 mm, MMTA meeting3 +0.02 (docs/history/pose-likelihood.md,
+"Round 2"); 0 switches it off (the thesis has none).
 
 A sixth, the *anchor* (``anchor``: (x, y, free, deviation) of the person's track, set by
 the estimator when ``PoseSettings.anchor > 0``; on in the pose worker, 0.05 m, off in the

@@ -118,7 +118,7 @@ class PoseSettings:
         them, ``min(gamma, max(gamma_min, budget // people))``, so that the frame's cost
         stays about the same however many people there are (a real-time budget; the
         thesis poses one person). Measured through the pipeline's voxels at 4 cm
-        (docs/benchmarks.md): meeting3's three people keep their MMTA with 25 each; one
+        (docs/history/pose-speed.md): meeting3's three people keep their MMTA with 25 each; one
         person alone (gesture1, walk1) loses 0.01-0.03 with 25-40, so alone keeps 50."""
         if self.gamma_budget <= 0 or people <= 1:
             return int(self.gamma)

@@ -2,8 +2,8 @@
 
 The pipeline's reconstruction carves with tolerance ``k = 1`` (§2.2.4: a voxel one
 camera misses stays), so that the tracker keeps a person a camera loses; that hull is
-5-7x the body and holds no limb shape (docs/benchmarks.md, "Pose on the reconstructed
-hull"). The pose stage therefore poses on the *consensus* subset, the voxels no camera
+5-7x the body and holds no limb shape (docs/history/pose-likelihood.md, "Pose on the consensus of
+the k = 1 hull"). The pose stage therefore poses on the *consensus* subset, the voxels no camera
 misses (``Voxels.misses == 0``, the ``k = 0`` hull). That subset loses thin, fast
 limbs where one camera's mask is thin or broken there: walk1's shins (158 of 572 true
 shin voxels kept at frame 30), a foot a camera sees behind furniture.
@@ -12,7 +12,7 @@ shin voxels kept at frame 30), a foot a camera sees behind furniture.
 are likely a limb and not the phantom of the ``k = 1`` hull: below ``low`` (m: shins and
 feet), within ``near`` (m, horizontally) of a track, and only where at least ``views``
 cameras still call them foreground (frames of ``views + 1`` cameras or more). Measured
-through the pipeline (docs/benchmarks.md, "Pipeline accuracy, round 2"): 0.2 m gained on
+through the pipeline (docs/history/pose-likelihood.md, "Round 2"): 0.2 m gained on
 gesture1, walk1 and meeting3 with pose seeds 0-2 and lost on all three with seeds 3-5, so
 the pose worker keeps ``consensus``; 0.3 m and higher add more phantom than limb
 (meeting3's 4 cm hull of 4 cameras loses 0.03-0.07). The phantom cones of ``k = 1`` open upwards and

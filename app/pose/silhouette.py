@@ -5,7 +5,7 @@ The voxels the pose stage fits (:mod:`app.pose.selection`, the consensus hull) a
 intersection of every camera's silhouette cone, so one camera's thin or broken mask
 carves a limb for all of them: on walk1 the swinging forearms and shins are half gone
 from the consensus voxels while each camera's mask still holds 96-98 % of the person
-(docs/benchmarks.md, "Masks against true silhouettes"), and the pose folds the arms
+(docs/benchmarks.md, "Segmentation"), and the pose folds the arms
 into the trunk. Each camera's silhouette still shows the limb. This term scores the
 model against the silhouettes themselves, in the direction the voxel scores cannot:
 per camera, the share of the person's silhouette pixels that the model's projection
@@ -33,7 +33,7 @@ the pinhole model into the reduced silhouettes, which are first remapped once a 
 undistorted views (the lens model of §2.2.2 per point cost 3x more); a pixel counts
 once per particle (a stamp grid with a token per particle, never cleared).
 
-Figures (docs/benchmarks.md, "The silhouettes themselves"): replays of the pipeline's
+Figures (docs/benchmarks.md, "Pose", and docs/history/pose-likelihood.md, "Session 8"): replays of the pipeline's
 voxels over 30 pose seeds, walk1 at 2 cm MMTA 0.878 -> 0.930, meeting3 at 4 cm 0.825 ->
 0.861, gesture1 0.953 -> 0.968; the default pipeline on meeting3 stays real time.
 """

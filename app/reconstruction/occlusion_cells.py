@@ -25,8 +25,9 @@ has seldom seen a person itself. Per cell ``X`` and camera ``c`` the model count
 
 and ``c`` may miss a voxel of ``X`` once ``evidence >= min_evidence`` (default 1)
 and ``evidence >= ratio * (evidence + seen)`` (default 0.4; 2 and 0.5, or cells of 4
-or 12 cm, move along the same recall-volume curve, docs/benchmarks.md). Learning is causal (a frame is carved with
-what the earlier frames taught, then teaches), deterministic for a recording, and
+or 12 cm, move along the same recall-volume curve, docs/history/reconstruction-hull.md).
+Learning is causal (a frame is carved with what the earlier frames taught, then
+teaches), deterministic for a recording, and
 bounded (two counters per cell and camera: at 8 cm, 5 cameras and a 5 x 4 x 2.5 m room
 about 0.5 M of each, ~4 MB).
 
@@ -41,7 +42,7 @@ Against the per-pixel occluders (the ``tight`` hull) on meeting3 and crowd6 at 2
 4 cm, with the segmentation's masks and with the true silhouettes, it keeps as much
 of the body or more at 0.1-0.35x less volume; with the ghost filter
 (:mod:`.ghosts`) meeting3 at 2 cm with the true silhouettes keeps 0.968 of the body at
-2.48x (docs/benchmarks.md, "Hull tightness").
+2.48x (docs/benchmarks.md, "Reconstruction": the hull table).
 
 Implementation: the frame is carved at tolerance ``k + 1`` (the ordinary coarse-to-
 fine carving, :mod:`.carving`), then :func:`select_and_learn` visits the carved voxels

@@ -83,7 +83,7 @@ class Reconstructor:
     occlusion_evidence, occlusion_ratio, occlusion_support, occlusion_margin : the
         occluder test of :class:`~.occlusion.OccluderModel` (``"learnt"``; evidence and
         ratio default to 4 and 0.6) and of :class:`~.occlusion_cells.CellOccluders`
-        (``"cells"``; default 1 and 0.4, the best of those measured, docs/benchmarks.md).
+        (``"cells"``; default 1 and 0.4, the best of those measured, docs/history/reconstruction-hull.md).
     learn_every : learn occluders from every n-th reconstructed frame (0: never, the
         masks stay as they are).
     abstain_support : a voxel on which a camera abstains behind an occluder needs
