@@ -210,6 +210,20 @@ def test_scene_poses_grey_inactive_limbs_and_remove_lost_poses():
     assert ("delete", f"{ROOT}/poses/4") in _kinds(scene.poses([5], joints[1:], active[1:]))
 
 
+def test_scene_draws_a_frame_without_people_after_one_with_people():
+    """Every run's first frame has no poses (frame 0 of any scene): the pose worker sends
+    empty arrays, which once crashed the viewer (a reshape of size 0)."""
+    from app.messages import decode
+    scene = Scene()
+    joints = np.random.default_rng(0).uniform(0, 2, (1, 15, 3))
+    assert scene.poses([7], joints, np.ones((1, 15), bool))
+    empty = Poses(frame=1, stamp=1.0, tracks=np.zeros(0, np.int64), joints=np.zeros((0, 15, 3)),
+                  active=np.zeros((0, 15), bool))
+    empty = decode(empty.to_bytes())                             # as it comes off the bus
+    assert _kinds(scene.poses(empty.tracks, empty.joints, empty.active)) == [("delete", f"{ROOT}/poses/7")]
+    assert scene.poses(empty.tracks, empty.joints, empty.active) == [] and scene.shown_poses == set()
+
+
 def test_scene_voxels_are_thinned_for_display():
     scene = Scene(max_points=1000)
     n = 5000

@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 
+from app.messages import JOINTS
 from app.viewer import three
 from app.viewer.geometry import (box_edges, default_view, ellipsoid_rings, floor_grid, frustum_segments, limb_segments,
                                  point_size, rgb_floats, subsample, track_colour, translation)
@@ -169,9 +170,10 @@ class Scene:
         joint is inactive) and joints as dots, drawn over the voxels; poses that are gone
         are removed."""
         tracks = [int(t) for t in np.asarray(tracks).reshape(-1)]
-        joints = np.asarray(joints, float).reshape(len(tracks), -1, 3) if tracks else np.zeros((0, 15, 3))
-        act = None if active is None or np.size(active) != len(tracks) * joints.shape[1] else \
-            np.asarray(active, bool).reshape(len(tracks), -1)
+        # a frame without people (every run's first) has no poses: (0, 15, 3) and (0, 15)
+        joints = np.asarray(joints, float).reshape(len(tracks), len(JOINTS), 3)
+        act = None if active is None or np.size(active) != joints.shape[0] * joints.shape[1] else \
+            np.asarray(active, bool).reshape(joints.shape[:2])
         cmds = []
         grey = np.asarray(INACTIVE_COLOUR, np.float32)
         for k, tid in enumerate(tracks):
