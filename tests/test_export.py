@@ -370,6 +370,36 @@ def test_export_command_writes_every_format(results, series, tmp_path):
     assert one.split("\n", 1)[1] == full.split("\n", 1)[1]   # the same but for the file name in line 1
 
 
+def test_export_leaves_out_short_tracks_and_says_so(results, tmp_path):
+    """A tracker's brief false starts (6 and 12 frames here, as on the default scene) get no
+    files of their own: ``--min-frames`` (default one second of frames) leaves them out."""
+    recs = [json.loads(line) for line in open(results / "poses.jsonl")]
+    for r in recs:
+        ghost = next(p for p in r["poses"] if p["track"] == 11)
+        for k, span in ((98, range(40, 52)), (99, range(10, 16))):
+            if r["frame"] in span:
+                r["poses"].append({**ghost, "track": k})
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "poses.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    (folder / "layout.yaml").write_text(yaml.safe_dump({"run": {"fps": FPS}}))
+    r = smartroom("export", folder, "--format", "bvh", "--format", "trc", "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    assert "left out 2 tracks of fewer than 25 frames: 98 (12 frames), 99 (6 frames)" in r.stderr
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == sorted(
+        f"track{k}.{f}" for k in (1, 2, 3, 11) for f in ("bvh", "trc"))
+    r = smartroom("export", folder, "--format", "trc", "--min-frames", 0, "--out", tmp_path / "b")
+    assert r.returncode == 0 and "left out" not in r.stderr
+    assert {"track98.trc", "track99.trc"} <= {p.name for p in (tmp_path / "b").iterdir()}
+    r = smartroom("export", folder, "--format", "trc", "--min-frames", 10, "--out", tmp_path / "c")
+    assert "left out 1 track of fewer than 10 frames: 99 (6 frames)" in r.stderr
+    r = smartroom("export", folder, "--format", "trc", "--track", 99, "--out", tmp_path / "d.trc")
+    assert r.returncode == 0 and (tmp_path / "d.trc").is_file()          # asked for by name
+    r = smartroom("export", folder, "--min-frames", 1000)
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("smartroom: error:")]
+    assert r.returncode == 2 and len(lines) == 1 and "lower --min-frames" in lines[0], r.stderr
+
+
 @pytest.mark.parametrize("args, message", [
     (["--track", "77"], "track 77 is not in the results"),
     (["--format", "bvh", "--out", "x.bvh"], "give a folder or --track K"),
