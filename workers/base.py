@@ -50,7 +50,7 @@ from workers.restarts import Restarts
 if TYPE_CHECKING:   # the config loader imports the workers, not the other way round
     from app.config import Layout, WorkerSpec
 
-__all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
+__all__ = ["Worker", "Inbox", "configure_logging", "FILE_ONLY", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
 STATE_PERIOD_S = 0.5
@@ -640,7 +640,8 @@ class Worker(Restarts):
             self._finish()
         if self._signal is not None and not self.input_ended:
             why = {signal.SIGTERM: "SIGTERM", signal.SIGINT: "SIGINT"}.get(self._signal, "its launcher is gone")
-            self.log.warning("stopped (%s) before its input ended; no end of stream sent", why)
+            # the launcher says why it stopped a worker, and restarts one stopped from outside
+            self.log.info("stopped (%s) before its input ended; no end of stream sent", why)
             self.exit_code = EXIT_TERMINATED
         return self.exit_code
 
@@ -694,7 +695,49 @@ class Worker(Restarts):
         return self.ledger.last_frame + 1, 0, 0.0
 
 
-def configure_logging(name: str, level: int = logging.INFO) -> None:
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format=f"%(asctime)s.%(msecs)03d [{name}] %(levelname)s %(message)s",
-                        datefmt="%H:%M:%S")
+LOG_BYTES = 1 << 20      # a worker's log file rotates at 1 MiB ...
+LOG_BACKUPS = 3          # ... keeping 3 older ones: at most 4 MiB a worker, however long the room runs
+
+
+class _JournalFormatter(logging.Formatter):
+    """One line per record (date, time, worker, pid, level, message); the lines of a
+    traceback follow it indented, so a reader (or grep, or journald) keeps them together."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        first, _, rest = text.partition("\n")
+        return first + ("".join("\n  " + line for line in rest.split("\n")) if rest else "")
+
+
+#: ``extra`` of a log record meant for the log file only (its one-line form is said on the terminal)
+FILE_ONLY = {"file_only": True}
+
+
+def configure_logging(name: str, level: int = logging.INFO, log_dir=None) -> Path | None:
+    """Log lines on stderr at ``level`` (the terminal: warnings unless --verbose) and, with
+    ``log_dir`` (the run's ``<out>/logs``), everything from INFO up into ``<name>.log``,
+    rotated at :data:`LOG_BYTES` with :data:`LOG_BACKUPS` older files; the log file's path."""
+    from logging.handlers import RotatingFileHandler
+
+    root = logging.getLogger()
+    root.setLevel(min(level, logging.INFO) if log_dir else level)
+    terminal = logging.StreamHandler(sys.stderr)
+    terminal.setLevel(level)
+    terminal.addFilter(lambda record: not getattr(record, "file_only", False))
+    terminal.setFormatter(logging.Formatter(f"%(asctime)s.%(msecs)03d [{name}] %(levelname)s %(message)s",
+                                            datefmt="%H:%M:%S"))
+    root.addHandler(terminal)
+    if not log_dir:
+        return None
+    path = Path(log_dir) / f"{name}.log"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handler = RotatingFileHandler(path, maxBytes=LOG_BYTES, backupCount=LOG_BACKUPS, encoding="utf-8")
+    except OSError as exc:
+        logging.getLogger(f"smartroom.{name}").warning("cannot write the log file %s (%s)", path, exc.strerror)
+        return None
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(_JournalFormatter(f"%(asctime)s.%(msecs)03d {name}[%(process)d] %(levelname)s "
+                                           "%(name)s: %(message)s", datefmt="%Y-%m-%d %H:%M:%S"))
+    root.addHandler(handler)
+    return path
