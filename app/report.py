@@ -32,9 +32,11 @@ class Progress:
         s = _deepest(stats)
         if s is None:
             return
-        self.last = now
         f = s.figures
         done = f.get("frames_out", 0)
+        if not done and not self.tty:
+            return   # nothing through yet: a line of zeros says nothing (a journal keeps it)
+        self.last = now
         rate = f.get("fps_out", 0.0)
         parts = [f"{s.stage}: frame {done}" + (f"/{self.total}" if self.total else "")]
         if self.total:
