@@ -147,7 +147,8 @@ class PipelineView:
         return "real-time" if rtf >= REAL_TIME else f"behind ({100 * rtf:.0f}% of real time)"
 
     def line(self) -> str:
-        """One journal-friendly line: ``rtf=.. verdict=.. bottleneck=.. | stage: ... | ...``."""
+        """The pipeline in one short journal line: ``rtf=.. verdict=.. bottleneck=.. busy=..
+        tracks=..`` (the stages' own lines are :meth:`stage_lines`)."""
         rows = self.rows()
         rtf = self.rtf(rows)
         neck = self.bottleneck(rows)
@@ -162,12 +163,15 @@ class PipelineView:
         statuses = self.statuses() if rtf is None else []
         if statuses:
             head.append("starting=" + ",".join(s.split(":", 1)[0] for s in statuses))
-        parts = [" ".join(head)]
-        for r in self.shown(rows):
-            parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
-                         f"p95={r.latency_p95:.1f} drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f} busy={r.busy:.2f}")
-        parts += statuses   # what the starting workers are doing, in words
-        return " | ".join(parts)
+        return " ".join(head)
+
+    def stage_lines(self) -> list[str]:
+        """One short line per stage (rates, latency, drops, CPU, busy), then what the
+        starting workers are doing, in words."""
+        rows = self.rows()
+        lines = [f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.0f}ms p95={r.latency_p95:.0f}ms "
+                 f"drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f}% busy={r.busy:.2f}" for r in self.shown(rows)]
+        return lines + (self.statuses() if self.rtf(rows) is None else [])
 
     def table(self) -> str:
         """The live terminal view."""
