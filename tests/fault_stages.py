@@ -71,3 +71,21 @@ class MuteSegmentation(Segmentation):
         if not getattr(self, "_said", False):
             self._said = True
             self.log.warning("mute: took frame %d in", msg.frame)
+
+
+class CompilingStage(Worker):
+    """Consumes voxels; on frame ``at`` it compiles a kernel taking ``compile_s`` (numba's own
+    compile event around the wait: a kernel compiled on a path first taken, on a first run)."""
+
+    KIND = "compiling"
+    ORDER = 3
+    CONSUMES = ("voxels",)
+    PRODUCES = ("compiling",)
+    DEFAULTS = {"at": 10, "compile_s": 3.0}
+
+    def handle(self, key, msg):
+        if msg.frame == self.params["at"]:
+            from numba.core import event
+            with event.trigger_event("numba:compile", data={"dispatcher": None, "args": (), "return_type": None}):
+                time.sleep(self.params["compile_s"])
+        self.publish(self.keys.stage("compiling"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))

@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
+from app.compiles import CompileClock
 from app.files import write_json
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
@@ -189,6 +190,9 @@ class Worker(Restarts):
         self.exit_code = EXIT_ENDED
         self._lock = threading.Lock()
         self._publish_lock = threading.Lock()
+        self.compiles = CompileClock(on_start=self._compiling)   # numba kernels compiled in this process
+        self._said_compiling = 0.0
+        self.setup_s: float | None = None
         self._init_restarts()
 
     # -- what subclasses provide ------------------------------------------------------
@@ -324,6 +328,14 @@ class Worker(Restarts):
             self._control_pub(self.keys.stats(self.name)).put(
                 Stats(frame=-1, stamp=time.time(), worker=self.name, stage=self.stage, final=False,
                       figures={"status": text, "order": self.ORDER}))
+
+    def _compiling(self) -> None:
+        """A kernel compile begins (numba, a first run): said as the worker's status (its
+        loop stands still meanwhile, so no stats come), at most every few seconds."""
+        now = time.monotonic()
+        if now - self._said_compiling > STATS_PERIOD_S * 3:
+            self._said_compiling = now
+            self.status("compiling kernels (a first run only: they are cached for the next)")
 
     def reject(self, key: str, reason: str, detail: str = "") -> None:
         """Count and drop a message this worker cannot use."""
@@ -513,6 +525,9 @@ class Worker(Restarts):
         figures["resent"] = self.resent
         figures["repeats_skipped"] = self.repeats_skipped
         figures["rejected"] = self.rejections.figures()
+        figures.update(self.compiles.figures())
+        if self.setup_s is not None:
+            figures["setup_s"] = round(self.setup_s, 3)
         if self._snapshot_ms:   # the cost of the state arrays (state_arrays, savez, rename), median ms
             figures["snapshot_ms"] = round(float(sorted(self._snapshot_ms)[len(self._snapshot_ms) // 2]), 2)
         figures.update(self.extra_figures())
@@ -607,6 +622,7 @@ class Worker(Restarts):
         """Run the worker until its stream ends or it is told to stop; the exit code."""
         self._install_signals()
         self._watch_launcher()
+        self.compiles.install()
         self.session = open_session(self.layout.bus.for_worker(), mode="client")
         try:
             self._wait_for = set(self.upstream())
@@ -619,7 +635,9 @@ class Worker(Restarts):
             # kernels compiled on a cold cache) waits in its inbox instead of going nowhere
             for key in self.subscriptions():
                 self._subs.append(self.session.declare_subscriber(key, self._on_sample))
+            t0 = time.time()
             self.setup()
+            self.setup_s = time.time() - t0   # tables, background models, kernels: start-up, reported apart
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             if "stats" in self.CONSUMES:
