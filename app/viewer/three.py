@@ -235,18 +235,19 @@ def text_image(text: str, colour=(1.0, 1.0, 1.0), scale: float = 1.0,
                outline=(0.05, 0.05, 0.05)) -> tuple[bytes, float]:
     """``text`` rendered as a PNG (transparent background, outlined letters) and its
     width/height ratio."""
+    from app.drawing import outlined_text
     font, thick = cv2.FONT_HERSHEY_DUPLEX, max(1, int(round(2 * scale)))
     fs = 1.2 * scale
     (w, h), base = cv2.getTextSize(text, font, fs, thick)
-    pad = 3 * thick + 2
+    ring = thick + 1
+    pad = ring + thick + 2
     img = np.zeros((h + base + 2 * pad, w + 2 * pad, 4), np.uint8)
-    org = (pad, pad + h)
 
-    def bgra(rgb):
-        return (int(rgb[2] * 255), int(rgb[1] * 255), int(rgb[0] * 255), 255)
+    def bgr(rgb):
+        return (int(rgb[2] * 255), int(rgb[1] * 255), int(rgb[0] * 255))
 
-    cv2.putText(img, text, org, font, fs, bgra(outline), thick + 3 * max(1, thick // 2) + 2, cv2.LINE_AA)
-    cv2.putText(img, text, org, font, fs, bgra(colour), thick, cv2.LINE_AA)
+    outlined_text(img, text, (pad, pad + h), fs, bgr(colour), thick, outline=ring, outline_colour=bgr(outline),
+                  font=font)
     ok, buf = cv2.imencode(".png", img)
     if not ok:  # pragma: no cover - OpenCV always encodes a small BGRA image
         raise ValueError("cannot encode the label image")
