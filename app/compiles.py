@@ -10,6 +10,7 @@ apart. Uses numba's own event (``numba:compile``, only real compiles, not cache 
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -31,13 +32,19 @@ class CompileClock:
         self._depth = 0
         self._began = 0.0
         self._lock = threading.Lock()
+        self.installed = False
 
-    def install(self) -> "CompileClock":
-        """Listen to numba's compile events in this process (nothing without numba)."""
+    def install(self, only_if_loaded: bool = False) -> "CompileClock":
+        """Listen to numba's compile events in this process, once. ``only_if_loaded``:
+        only once numba is imported (a worker that uses no kernel does not pay numba's
+        import, ~0.7 s and ~90 MB; call again later, it is cheap)."""
+        if self.installed or (only_if_loaded and "numba" not in sys.modules):
+            return self
         try:
             from numba.core import event
         except ImportError:   # pragma: no cover - numba is a dependency
             return self
+        self.installed = True
         clock = self
 
         class _Listener(event.Listener):

@@ -551,6 +551,7 @@ class Worker(Restarts):
         return {}
 
     def _periodic(self) -> None:
+        self.compiles.install(only_if_loaded=True)   # numba imported on a path first taken
         now = time.monotonic()
         if now - self._last_stats >= STATS_PERIOD_S:
             self._publish_stats()
@@ -622,7 +623,7 @@ class Worker(Restarts):
         """Run the worker until its stream ends or it is told to stop; the exit code."""
         self._install_signals()
         self._watch_launcher()
-        self.compiles.install()
+        self.compiles.install(only_if_loaded=True)   # kernels' modules are imported with the kind
         self.session = open_session(self.layout.bus.for_worker(), mode="client")
         try:
             self._wait_for = set(self.upstream())
@@ -638,6 +639,7 @@ class Worker(Restarts):
             t0 = time.time()
             self.setup()
             self.setup_s = time.time() - t0   # tables, background models, kernels: start-up, reported apart
+            self.compiles.install(only_if_loaded=True)   # numba imported by the set-up
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             if "stats" in self.CONSUMES:
