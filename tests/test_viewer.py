@@ -499,6 +499,24 @@ def test_server_binds_where_asked_and_serves_the_page_itself(bind):
     assert page_url("0.0.0.0", 7000).endswith(":7000/static/") and "0.0.0.0" not in page_url("0.0.0.0", 7000)
 
 
+def test_a_second_server_takes_the_next_free_port():
+    """Port 0 tries 7000, 7001, ...: a try whose port is taken (another viewer, a replay)
+    must not spoil the next (its command socket's address was reused: 'Address already
+    in use (addr=inproc://...)', and the viewer died)."""
+    first = MeshcatServer("127.0.0.1", 0).start()
+    try:
+        second = MeshcatServer("127.0.0.1", 0).start()
+        try:
+            assert second.port > first.port
+            second.send(three.set_object(f"{ROOT}/x", three.points(np.zeros((2, 3)))))
+            page = urllib.request.urlopen(second.url, timeout=10).read().decode()
+            assert "MeshCat" in page
+        finally:
+            second.close()
+    finally:
+        first.close()
+
+
 # -- a real run, rendered -----------------------------------------------------------------------
 
 VOXEL = 0.03

@@ -104,7 +104,8 @@ class Viewer(Worker):
 
     def extra_state(self) -> dict:
         server = getattr(self, "server", None)
-        return {"port": server.port} if server is not None and server.port else {}
+        port = server.port if server is not None else getattr(self, "_earlier_port", None)   # (before set-up)
+        return {"port": port} if port else {}
 
     def restore_state(self, state: dict) -> None:
         port = state.get("port")

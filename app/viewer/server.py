@@ -247,6 +247,9 @@ class MeshcatServer:
             return _Bridge(self.bind, self.requested_port, self._zmq_url, self.latest_only)
         last = None
         for port in range(DEFAULT_FILESERVER_PORT, DEFAULT_FILESERVER_PORT + PORT_ATTEMPTS):
+            # each try its own command socket address: the one of a failed try (its port
+            # taken, e.g. by another viewer) is not free again at once ("Address already in use")
+            self._zmq_url = f"inproc://smartroom-viewer-{next(_COUNTER)}"
             try:
                 return _Bridge(self.bind, port, self._zmq_url, self.latest_only)
             except OSError as exc:
