@@ -145,6 +145,7 @@ class Launcher:
         self._lock = threading.Lock()
         self._last_stats_write = 0.0
         self._reserve = self.out / ".reserve"
+        self.started = time.time()   # the run's start-up is counted from here (stats.json "startup")
 
     # -- processes ----------------------------------------------------------------
     def _spawn(self, p: _Proc) -> None:
@@ -203,6 +204,7 @@ class Launcher:
     # -- the run ------------------------------------------------------------------
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
+        self.started = time.time()
         session = self._session = open_session(self.hub_bus, mode="router")
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
@@ -380,7 +382,7 @@ class Launcher:
         fps = self.layout.run.fps or 0.0
         source = next((self.eos[p.name] for p in self.procs if p.source and p.name in self.eos), None)
         expected = source.frames if source is not None else None
-        out = summarise(stages, fps, expected)
+        out = summarise(stages, fps, expected, started=self.started)
         restarts = {p.name: p.restarts for p in self.procs}
         for name, s in out["stages"].items():
             s["restarts"] = restarts.get(name, s.get("restarts", 0))

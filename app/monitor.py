@@ -18,6 +18,18 @@ __all__ = ["StageRow", "PipelineView", "REAL_TIME"]
 
 REAL_TIME = 0.95   # RTF at or above this counts as keeping up
 SILENT_S = 3.0     # a worker whose stats are older than this is marked silent
+COMPILE_SETTLE_S = 2.5   # after a stage's kernel compile, until its rates (2 s windows) are of frames again
+
+
+def _compiled_ago(figures: dict, now: float) -> float | None:
+    """Seconds since the worker's last kernel compile ended (0 while it compiles), or None."""
+    if figures.get("compiling"):
+        return 0.0
+    spans = figures.get("compile_spans") or []
+    try:
+        return max(0.0, now - float(spans[-1][1])) if spans else None
+    except (TypeError, ValueError, IndexError):
+        return None
 
 
 @dataclass
@@ -36,6 +48,7 @@ class StageRow:
     final: bool
     age_s: float
     frames_out: int = 0   # put out since the stage started
+    compiled_ago_s: float | None = None   # since its last kernel compile ended (0: compiling now)
 
     @property
     def processing(self) -> bool:
@@ -59,9 +72,11 @@ class PipelineView:
                 self.recording_fps = fps
 
     def rows(self) -> list[StageRow]:
+        from app.stats import steady_fps
         now = self.clock()
         with self._lock:
             items = list(self._stats.items())
+        compiles = [span for _, (_, msg) in items for span in (msg.figures.get("compile_spans") or [])]
         rows = []
         for name, (seen, msg) in items:
             f = msg.figures
@@ -71,13 +86,15 @@ class PipelineView:
             final = msg.final
             rows.append(StageRow(
                 name=name, stage=msg.stage, order=f.get("order"),
-                fps_in=f.get("fps", 0.0) if final else f.get("fps_in", 0.0),
-                fps_out=f.get("fps", 0.0) if final else f.get("fps_out", 0.0),
+                # a stage that ended: its rate over its run, as stats.json says it (compiles left out)
+                fps_in=steady_fps(f, compiles) if final else f.get("fps_in", 0.0),
+                fps_out=steady_fps(f, compiles) if final else f.get("fps_out", 0.0),
                 latency_p50=lat.get("p50", 0.0), latency_p95=lat.get("p95", 0.0),
                 dropped=f.get("frames_dropped", 0),
                 missing=f.get("frames_missing", 0) if final else f.get("frames_lost", 0),
                 cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
-                final=final, age_s=now - seen, frames_out=int(f.get("frames_out", 0) or 0)))
+                final=final, age_s=now - seen, frames_out=int(f.get("frames_out", 0) or 0),
+                compiled_ago_s=_compiled_ago(f, now)))
         rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
         return rows
 
@@ -98,8 +115,12 @@ class PipelineView:
         if last is None or not self.recording_fps:
             return None
         # start-up lasts until every stage has put out its first frame (a stage still loading
-        # its kernels on its first frame is not the bottleneck of a running pipeline)
+        # its kernels on its first frame is not the bottleneck of a running pipeline), and
+        # while a stage compiles kernels, until its rates are of frames after the compile
         if not all(r.fps_out > 0 or r.frames_out > 0 or r.final for r in rows if r.processing):
+            return None
+        if any(r.compiled_ago_s is not None and r.compiled_ago_s < COMPILE_SETTLE_S and not r.final
+               for r in rows if r.processing):
             return None
         return last.fps_out / self.recording_fps
 
@@ -147,7 +168,8 @@ class PipelineView:
         return "real-time" if rtf >= REAL_TIME else f"behind ({100 * rtf:.0f}% of real time)"
 
     def line(self) -> str:
-        """One journal-friendly line: ``rtf=.. verdict=.. bottleneck=.. | stage: ... | ...``."""
+        """The pipeline in one short journal line: ``rtf=.. verdict=.. bottleneck=.. busy=..
+        tracks=..`` (the stages' own lines are :meth:`stage_lines`)."""
         rows = self.rows()
         rtf = self.rtf(rows)
         neck = self.bottleneck(rows)
@@ -162,12 +184,15 @@ class PipelineView:
         statuses = self.statuses() if rtf is None else []
         if statuses:
             head.append("starting=" + ",".join(s.split(":", 1)[0] for s in statuses))
-        parts = [" ".join(head)]
-        for r in self.shown(rows):
-            parts.append(f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.1f} "
-                         f"p95={r.latency_p95:.1f} drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f} busy={r.busy:.2f}")
-        parts += statuses   # what the starting workers are doing, in words
-        return " | ".join(parts)
+        return " ".join(head)
+
+    def stage_lines(self) -> list[str]:
+        """One short line per stage (rates, latency, drops, CPU, busy), then what the
+        starting workers are doing, in words."""
+        rows = self.rows()
+        lines = [f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.0f}ms p95={r.latency_p95:.0f}ms "
+                 f"drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f}% busy={r.busy:.2f}" for r in self.shown(rows)]
+        return lines + (self.statuses() if self.rtf(rows) is None else [])
 
     def table(self) -> str:
         """The live terminal view."""

@@ -79,6 +79,7 @@ class _CameraThread(threading.Thread):
         self.why = ""
         self.stopped = threading.Event()
         self.cap = None
+        self.delivered = False   # an image came at least once
 
     def _open(self):
         cap = cv2.VideoCapture(self.source)
@@ -113,6 +114,7 @@ class _CameraThread(threading.Thread):
                 img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
             with self.lock:
                 self.latest, self.fresh = img, True
+                self.delivered = True
             if self.failed_since is not None:
                 log.warning("camera %s is back", self.cam)
                 self.failed_since = None
@@ -123,7 +125,11 @@ class _CameraThread(threading.Thread):
         self.why = why
         if self.failed_since is None:
             self.failed_since = time.time()
-            log.warning("camera %s (%s) %s; the others go on, retrying every %.0f s", self.cam, self.source, why, self.reopen_s)
+            # a camera lost mid-run is news; one that has not opened yet is said by LiveSource
+            # once its open_timeout is over (an error naming every camera, or a camera left out)
+            level = logging.WARNING if self.delivered else logging.INFO
+            log.log(level, "camera %s (%s) %s; the others go on, retrying every %.0f s", self.cam, self.source, why,
+                    self.reopen_s)
 
     def take(self) -> np.ndarray | None:
         with self.lock:
@@ -154,6 +160,9 @@ class LiveSource:
             calibration.camera(c)
         self.fps = calibration.fps
         self.expected = frames
+        # OpenCV's own lines about a camera it cannot open would repeat at every retry, on
+        # the terminal and past the log files: the cameras' threads say it once (log)
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         self.threads = {c: _CameraThread(c, sources[c], calibration.camera(c).width, calibration.camera(c).height,
                                          self.fps) for c in self.cameras}
         self.start = start   # a restarted grabber carries the frame numbers on

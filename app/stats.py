@@ -22,7 +22,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["StageLedger", "FrameSet", "summarise", "percentiles"]
+__all__ = ["StageLedger", "FrameSet", "summarise", "steady_fps", "percentiles"]
 
 WINDOW_S = 2.0
 RECENT = 5000   # outputs (~3 min at 25 fps) behind the running latency percentiles
@@ -102,6 +102,7 @@ class StageLedger:
         self.process_ms = array("d")
         self.first_stamp = None
         self.first_in = None
+        self.first_emit = None      # the first output: a stage's rate counts from there
         self.last_emit = None
         self.last_frame = -1
         self.newest_out = -1
@@ -134,6 +135,8 @@ class StageLedger:
     def emitted(self, frame: int, stamp: float) -> None:
         now = self.clock()
         self.items_out += 1
+        if self.first_emit is None:
+            self.first_emit = now
         self.last_emit = now
         if self.done.add(frame):
             if self.journal is not None:
@@ -166,7 +169,8 @@ class StageLedger:
         return {"seen": self.seen.ranges(), "done": self.done.ranges(), "items_in": self.items_in,
                 "items_out": self.items_out, "items_dropped": self.items_dropped,
                 "bad_messages": self.bad_messages, "last_frame": self.last_frame,
-                "newest_out": self.newest_out, "first_stamp": self.first_stamp, "last_emit": self.last_emit,
+                "newest_out": self.newest_out, "first_stamp": self.first_stamp, "first_emit": self.first_emit,
+                "last_emit": self.last_emit,
                 "process_total": self.process_total}
 
     def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
@@ -178,7 +182,7 @@ class StageLedger:
             v = state.get(name)
             if isinstance(v, int):
                 setattr(self, name, v)
-        for name in ("first_stamp", "last_emit"):
+        for name in ("first_stamp", "first_emit", "last_emit"):
             v = state.get(name)
             if isinstance(v, (int, float)):
                 setattr(self, name, float(v))
@@ -226,9 +230,9 @@ class StageLedger:
         since = self._cpu_start if final else self._cpu0   # the whole run at the end
         cpu_percent = 100.0 * (cpu - since[1]) / max(1e-6, mono - since[0])
         self._cpu0 = (mono, cpu)
-        active = None
-        if self.first_stamp is not None and self.last_emit is not None:
-            active = self.last_emit - self.first_stamp
+        active = None   # from the first output: the start-up before it (loading, compiling) is not the rate
+        if self.first_emit is not None and self.last_emit is not None:
+            active = self.last_emit - self.first_emit
         fig = {
             "frames_in": frames_in,
             "frames_out": frames_out,
@@ -242,7 +246,7 @@ class StageLedger:
             "bad_messages": self.bad_messages,
             "fps_in": round(win_in / span, 3),
             "fps_out": round(len(win_lat) / span, 3),
-            # N frames span N-1 frame intervals from the first capture to the last output
+            # N frames span N-1 frame intervals from the first output to the last
             "fps": round((frames_out - 1) / active, 3) if active and frames_out > 1 else 0.0,
             "latency_ms": percentiles(self._span(self.latency_ms, final)),
             "latency_window_ms": percentiles(win_lat),
@@ -255,6 +259,7 @@ class StageLedger:
             "cpu_percent": round(cpu_percent, 1),
             "last_frame": self.last_frame,
             "first_stamp": self.first_stamp,
+            "first_emit": self.first_emit,
             "last_emit": self.last_emit,
             "elapsed_s": round(now - self.started, 3),
             "pid": os.getpid(),
@@ -266,16 +271,35 @@ class StageLedger:
         return fig
 
 
-def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> dict:
+def steady_fps(f: dict, compile_spans) -> float:
+    """A stage's rate from its first output to its last, without the time the pipeline
+    waited for kernels to compile meanwhile (any stage's: offline, the flow control holds
+    every stage while one compiles)."""
+    from app.compiles import union_seconds
+    n, a, b = f.get("frames_out", 0), f.get("first_emit"), f.get("last_emit")
+    if not (isinstance(a, (int, float)) and isinstance(b, (int, float))) or n < 2 or b <= a:
+        return float(f.get("fps", 0.0) or 0.0)
+    span = (b - a) - union_seconds(compile_spans, a, b)
+    return round((n - 1) / span, 3) if span > 0 else float(f.get("fps", 0.0) or 0.0)
+
+
+def summarise(stages: dict, recording_fps: float, frames: int | None = None, started: float | None = None) -> dict:
     """The pipeline summary of ``stats.json`` from each worker's last figures.
 
     ``stages`` maps worker name to ``{"stage", "order", "figures"}``. A stage's
-    throughput is the frames it put out over the wall time from the first capture to
-    its last output. The pipeline's throughput is that of its last processing stage
+    throughput is the frames it put out over the wall time from its first output to its
+    last, less the time spent compiling kernels meanwhile (one-off: a first run compiles,
+    later runs load them). The pipeline's throughput is that of its last processing stage
     (``final_stage``): the frames delivered at the end of the pipeline, so a frame
     dropped or lost anywhere before counts against it; its real-time factor is
-    ``RTF = fps / f_R`` (thesis Eq. 4.27). ``bottleneck`` names the slowest stage.
+    ``RTF = fps / f_R`` (thesis Eq. 4.27). ``bottleneck`` names the slowest stage. The
+    start-up is reported apart (``startup``): from ``started`` (the run's start, wall
+    clock) to the first frame delivered, each worker's set-up (tables, background models)
+    and the kernels' compile time; ``rtf_with_startup`` is the frames delivered over the
+    whole run's time, start-up included.
     """
+    compile_spans = [span for s in stages.values() for span in (s["figures"].get("compile_spans") or [])
+                     if isinstance(span, list) and len(span) == 2]
     per_stage = {}
     for name, s in stages.items():
         f = s["figures"]
@@ -293,9 +317,11 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
             "latency_p95_ms": f.get("latency_ms", {}).get("p95", 0.0),
             "process_mean_ms": f.get("process_ms", {}).get("mean", 0.0),
             "process_p95_ms": f.get("process_ms", {}).get("p95", 0.0),
-            "fps": f.get("fps", 0.0),
+            "fps": steady_fps(f, compile_spans),
             "cpu_percent": f.get("cpu_percent", 0.0),
             "bad_messages": f.get("bad_messages", 0),
+            "setup_s": f.get("setup_s"),
+            "compile_s": f.get("compile_s", 0.0),
             "final": bool(s.get("final", False)),
         }
     out = {"recording_fps": recording_fps, "frames": frames, "stages": per_stage}
@@ -305,6 +331,7 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
         deepest = max(procs, key=lambda n: per_stage[n]["order"])
         fps = per_stage[deepest]["fps"]
         delivered = per_stage[deepest]["frames_out"]
+        last = stages[deepest]["figures"]
         out.update({
             "final_stage": deepest,
             "bottleneck": slowest,
@@ -313,6 +340,19 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None) -> 
             "frames_delivered": delivered,
             "delivered_ratio": round(delivered / frames, 4) if frames else None,
             "rtf": round(fps / recording_fps, 4) if recording_fps else None,
-            "end_to_end_latency_ms": stages[deepest]["figures"].get("latency_ms", {}),
+            "end_to_end_latency_ms": last.get("latency_ms", {}),
         })
+        first, end = last.get("first_emit"), last.get("last_emit")
+        if started is not None and isinstance(first, (int, float)):
+            from app.compiles import union_seconds
+            out["startup"] = {
+                "s": round(first - started, 3),   # from the run's start to the first frame delivered
+                "setup_s": {n: s["figures"]["setup_s"] for n, s in sorted(stages.items())
+                            if isinstance(s["figures"].get("setup_s"), (int, float))},
+                "compile_s": round(union_seconds(compile_spans, started, float("inf")), 3),
+                "compile_after_first_frame_s": round(union_seconds(compile_spans, first, end), 3)
+                if isinstance(end, (int, float)) else 0.0,
+            }
+            if recording_fps and isinstance(end, (int, float)) and end > started and delivered:
+                out["rtf_with_startup"] = round(delivered / (end - started) / recording_fps, 4)
     return out

@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from app.drawing import outlined_text
 from calibration.camera import Camera
 
 __all__ = ["draw_calibration", "contact_sheet", "floor_coverage"]
@@ -64,14 +65,20 @@ def draw_calibration(camera: Camera, image: np.ndarray | None, room_min, room_ma
     step = int(30 * scale) + 4
     y = step
     for text in [camera.name] + list(lines or []):
-        cv2.putText(img, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
-        cv2.putText(img, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
+        outlined_text(img, text, (6 + thick, y), scale, (255, 255, 255), thick, outline=thick + 1)
         y += step
     return img
 
 
-def contact_sheet(images: list[np.ndarray], tile_height: int = 360, columns: int | None = None) -> np.ndarray:
-    """Images (any sizes, portrait or landscape) scaled to one height and tiled in a grid."""
+SHEET_TILE_HEIGHT = 720   # HD cameras are judged at 1280x720 each in the sheet (2560x1440 for four)
+
+
+def contact_sheet(images: list[np.ndarray], tile_height: int | None = None, columns: int | None = None) -> np.ndarray:
+    """Images (any sizes, portrait or landscape) scaled to one height and tiled in a grid;
+    the height is the images' own, up to :data:`SHEET_TILE_HEIGHT` (big enough to judge
+    whether the room's lines fall on its edges)."""
+    if tile_height is None:
+        tile_height = min(SHEET_TILE_HEIGHT, max(im.shape[0] for im in images))
     tiles = [cv2.resize(im, (max(1, round(im.shape[1] * tile_height / im.shape[0])), tile_height),
                         interpolation=cv2.INTER_AREA) for im in images]
     cols = columns or int(np.ceil(np.sqrt(len(tiles))))

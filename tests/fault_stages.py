@@ -9,13 +9,14 @@ from workers.segmentation import Segmentation
 
 class CrashyStage(Worker):
     """Consumes voxels; its incarnation ``n`` dies (exit 1) on frame ``crash_at[n]``, or
-    at once when ``crash_on_start`` (a restart storm)."""
+    at once when ``crash_on_start`` (a restart storm); with ``raises`` it dies of a Python
+    exception (a bug) instead."""
 
     KIND = "crashy"
     ORDER = 3
     CONSUMES = ("voxels",)
     PRODUCES = ("crashy",)
-    DEFAULTS = {"crash_at": [], "crash_on_start": False}
+    DEFAULTS = {"crash_at": [], "crash_on_start": False, "raises": False}
 
     def setup(self):
         if self.params["crash_on_start"]:
@@ -24,6 +25,9 @@ class CrashyStage(Worker):
     def handle(self, key, msg):
         plan = self.params["crash_at"]
         if self.incarnation < len(plan) and msg.frame >= plan[self.incarnation]:
+            if self.params["raises"]:
+                self.log.warning("about to fail on frame %d", msg.frame)
+                raise RuntimeError(f"a bug met on frame {msg.frame}")
             os._exit(1)
         self.publish(self.keys.stage("crashy"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))
 
@@ -67,3 +71,21 @@ class MuteSegmentation(Segmentation):
         if not getattr(self, "_said", False):
             self._said = True
             self.log.warning("mute: took frame %d in", msg.frame)
+
+
+class CompilingStage(Worker):
+    """Consumes voxels; on frame ``at`` it compiles a kernel taking ``compile_s`` (numba's own
+    compile event around the wait: a kernel compiled on a path first taken, on a first run)."""
+
+    KIND = "compiling"
+    ORDER = 3
+    CONSUMES = ("voxels",)
+    PRODUCES = ("compiling",)
+    DEFAULTS = {"at": 10, "compile_s": 3.0}
+
+    def handle(self, key, msg):
+        if msg.frame == self.params["at"]:
+            from numba.core import event
+            with event.trigger_event("numba:compile", data={"dispatcher": None, "args": (), "return_type": None}):
+                time.sleep(self.params["compile_s"])
+        self.publish(self.keys.stage("compiling"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))

@@ -148,6 +148,11 @@ def bvh_fk(bones, data) -> dict:
     return pos
 
 
+def _own(series, tp) -> slice:
+    """The rows of a BVH file (on the run's timeline) that are the track's own frames."""
+    return slice(tp.first - series.first, tp.first - series.first + len(tp.joints))
+
+
 def test_bvh_forward_kinematics_reproduces_the_joints(series, exported):
     paths = exported["bvh"]
     assert [p.name for p in paths] == [f"track{k}.bvh" for k in sorted(series.tracks)]
@@ -159,9 +164,10 @@ def test_bvh_forward_kinematics_reproduces_the_joints(series, exported):
         assert bones[0]["channels"][:3] == ["Xposition", "Yposition", "Zposition"]
         pos = bvh_fk(bones, data)
         world = np.stack([pos[j] for j in JOINTS], axis=1) @ TO_BVH   # back to z-up
-        _compare(series, k, world)
-        # the person's limb lengths are the offsets
         tp = series.tracks[k]
+        assert len(data) == series.count                             # the run's timeline (below)
+        _compare(series, k, world[_own(series, tp)])
+        # the person's limb lengths are the offsets
         thigh = np.linalg.norm(tp.joints[:, JOINTS.index("l_knee")] - tp.joints[:, JOINTS.index("l_hip")], axis=-1)
         knee = next(b for b in bones if b["name"] == "l_knee")
         assert np.linalg.norm(knee["offset"]) == pytest.approx(np.median(thigh), abs=0.2 * MM)
@@ -179,7 +185,7 @@ def test_bvh_opens_in_a_maintained_reader(series, exported):
         frames = np.arange(0, len(tp.joints), 7)
         got = np.zeros((len(frames), len(JOINTS), 3))
         for n, f in enumerate(frames):
-            root.loadPose(int(f), recursive=True)
+            root.loadPose(int(f + tp.first - series.first), recursive=True)
             for m, name in enumerate(JOINTS):
                 got[n, m] = list(joints[name].PositionWorld)
         _compare(series, k, got @ TO_BVH, frames=tp.first + frames)
@@ -206,17 +212,54 @@ def test_bvh_dropped_limb_holds_its_last_angles(series, exported):
     for b in bones:
         col[b["name"]] = slice(c + len(b["channels"]) - 3, c + len(b["channels"]))
         c += len(b["channels"])
-    before = DROP_FRAMES[0] - 1 - tp.first
+    before = DROP_FRAMES[0] - 1 - series.first
     for f in DROP_FRAMES:
-        i = f - tp.first
+        i = f - series.first
         for name in ("l_shoulder", "l_elbow"):   # the upper arm ends at the dropped elbow
             assert np.array_equal(data[i, col[name]], data[before, col[name]]), (f, name)
         # and the rest of the body keeps moving
-    moved = np.abs(data[DROP_FRAMES[-1] - tp.first, :3] - data[before, :3]).max()
+    moved = np.abs(data[DROP_FRAMES[-1] - series.first, :3] - data[before, :3]).max()
     assert moved > 0.05
     pos = bvh_fk(bones, data)
     world = np.stack([pos[j] for j in JOINTS], axis=1) @ TO_BVH
-    _compare(series, 2, world)   # active joints, the dropped frames included, still within 1 mm
+    _compare(series, 2, world[_own(series, tp)])   # active joints, the dropped frames included, within 1 mm
+
+
+def test_bvh_files_of_a_run_share_its_timeline(results, tmp_path):
+    """Blender imports every BVH at its frame 1: each file starts at the run's first frame
+    and has the run's frame count, the person held at their first pose until they come in
+    and at their last after they leave (read back with bvhio)."""
+    bvhio = pytest.importorskip("bvhio")
+    recs = [json.loads(line) for line in open(results / "poses.jsonl")]
+    for r in recs:   # track 11 leaves at frame 110; meeting3's person 1 comes in late
+        r["poses"] = [p for p in r["poses"] if p["track"] != 11 or r["frame"] <= 110]
+    series = series_from_records(recs, FPS)
+    late, early = series.tracks[1], series.tracks[11]
+    assert late.first > series.first + 25 and early.first + len(early.joints) - 1 == 110 < series.last
+    paths = {p.stem: p for p in export_series(series, "bvh", tmp_path)}
+    read = {k: bvhio.readAsBvh(str(paths[f"track{k}"])) for k in (1, 11)}
+    for k, bvh in read.items():
+        assert bvh.FrameCount == series.count and bvh.FrameTime == pytest.approx(1 / FPS), k
+    roots = {}
+    for k in (1, 11):
+        root = bvhio.readAsHierarchy(str(paths[f"track{k}"]))
+        joints = {j.Name: j for j, *_ in root.layout()}
+        pelvis = []
+        for f in range(series.count):
+            root.loadPose(f, recursive=True)
+            pelvis.append(list(joints["pelvis"].PositionWorld))
+        roots[k] = np.array(pelvis) @ TO_BVH                # (F, 3) z-up, on the run's timeline
+    p = JOINTS.index("pelvis")
+    i = late.first - series.first                           # the late person: held until they come in
+    np.testing.assert_allclose(roots[1][:i + 1], np.repeat(late.joints[:1, p], i + 1, axis=0), atol=1 * MM)
+    np.testing.assert_allclose(roots[1][i + 20], late.joints[20, p], atol=1 * MM)   # then moving, in step
+    j = 110 - series.first                                  # the one who left: held after
+    np.testing.assert_allclose(roots[11][j:], np.repeat(early.joints[-1:, p], series.count - j, axis=0), atol=1 * MM)
+    np.testing.assert_allclose(roots[11][50], early.joints[50 - early.first, p], atol=1 * MM)
+    # the same frame number is the same instant in both files
+    f = 100
+    np.testing.assert_allclose(roots[1][f - series.first], late.joints[f - late.first, p], atol=1 * MM)
+    np.testing.assert_allclose(roots[11][f - series.first], early.joints[f - early.first, p], atol=1 * MM)
 
 
 # -- C3D, TRC, CSV --------------------------------------------------------------------------
@@ -325,6 +368,36 @@ def test_export_command_writes_every_format(results, series, tmp_path):
     assert r.returncode == 0, r.stderr
     one, full = (tmp_path / "one.trc").read_text(), (out / "track11.trc").read_text()
     assert one.split("\n", 1)[1] == full.split("\n", 1)[1]   # the same but for the file name in line 1
+
+
+def test_export_leaves_out_short_tracks_and_says_so(results, tmp_path):
+    """A tracker's brief false starts (6 and 12 frames here, as on the default scene) get no
+    files of their own: ``--min-frames`` (default one second of frames) leaves them out."""
+    recs = [json.loads(line) for line in open(results / "poses.jsonl")]
+    for r in recs:
+        ghost = next(p for p in r["poses"] if p["track"] == 11)
+        for k, span in ((98, range(40, 52)), (99, range(10, 16))):
+            if r["frame"] in span:
+                r["poses"].append({**ghost, "track": k})
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "poses.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    (folder / "layout.yaml").write_text(yaml.safe_dump({"run": {"fps": FPS}}))
+    r = smartroom("export", folder, "--format", "bvh", "--format", "trc", "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    assert "left out 2 tracks of fewer than 25 frames: 98 (12 frames), 99 (6 frames)" in r.stderr
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == sorted(
+        f"track{k}.{f}" for k in (1, 2, 3, 11) for f in ("bvh", "trc"))
+    r = smartroom("export", folder, "--format", "trc", "--min-frames", 0, "--out", tmp_path / "b")
+    assert r.returncode == 0 and "left out" not in r.stderr
+    assert {"track98.trc", "track99.trc"} <= {p.name for p in (tmp_path / "b").iterdir()}
+    r = smartroom("export", folder, "--format", "trc", "--min-frames", 10, "--out", tmp_path / "c")
+    assert "left out 1 track of fewer than 10 frames: 99 (6 frames)" in r.stderr
+    r = smartroom("export", folder, "--format", "trc", "--track", 99, "--out", tmp_path / "d.trc")
+    assert r.returncode == 0 and (tmp_path / "d.trc").is_file()          # asked for by name
+    r = smartroom("export", folder, "--min-frames", 1000)
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("smartroom: error:")]
+    assert r.returncode == 2 and len(lines) == 1 and "lower --min-frames" in lines[0], r.stderr
 
 
 @pytest.mark.parametrize("args, message", [

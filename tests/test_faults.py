@@ -243,13 +243,20 @@ def test_a_live_camera_that_never_opens_is_a_clear_error(long_recording, tmp_pat
     out = tmp_path / "out"
     layout = write_layout(tmp_path / "layout.yaml", recorder_voxels=False)
     t0 = time.monotonic()
-    r = smartroom("run", "--live", "cam0=/nonexistent/cam0.mp4", "--live", "cam1=/nonexistent/cam1.mp4",
+    r = smartroom("run", "--live", "cam0=/nonexistent/cam0.mp4", "--live", "cam1=7",
                   "--calibration", Path(long_recording) / "calibration.yaml", "--headless", "--layout", layout,
                   "--set", "grabber.open_timeout=2", "--out", out, timeout=60)
     assert time.monotonic() - t0 < 30
     assert r.returncode == 2, r.stderr
     line = [x for x in r.stderr.splitlines() if x.startswith("smartroom: error:")]
     assert len(line) == 1 and "no live camera delivered an image" in line[0] and "cam1" in line[0]
+    # and nothing else but the line that said what runs: no OpenCV warnings repeated at each
+    # retry, no workers' SIGTERM warnings, no table of zeros, no "RTF 0.00"
+    assert r.stdout == "", r.stdout
+    assert [x for x in r.stderr.splitlines() if x != line[0]] == [
+        f"smartroom: 4 workers here on cam0=/nonexistent/cam0.mp4, cam1=7; results in {out.resolve()}"], r.stderr
+    log = (out / "logs" / "grabber.log").read_text()          # what happened is in the grabber's log
+    assert "camera cam1 (7) cannot be opened" in log
 
 
 @pytest.fixture(scope="module")

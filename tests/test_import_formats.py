@@ -7,7 +7,8 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from calibration import Camera, load_calibration
+from calibration import Calibration, Camera, load_calibration
+from calibration.loader import save_calibration
 from calibration.formats import FormatError, read_cameras, write_opencv, write_toml
 from calibration.transform import turned
 from tests.conftest import smartroom
@@ -222,6 +223,24 @@ def test_import_and_export_round_trip_on_the_command_line(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "room (estimated" in r.stdout
     assert_same_projection(truth, list(load_calibration(tmp_path / "o.yaml").cameras))
+
+
+def test_export_into_a_folder_that_does_not_exist_yet(tmp_path):
+    """``--out`` in a folder not made yet: made (a traceback before), like the opencv folder;
+    a path that cannot be written: one line."""
+    calib = tmp_path / "calibration.yaml"
+    save_calibration(Calibration(25.0, np.zeros(3), np.array([5.0, 4.0, 2.5]), tuple(known_cameras())), calib)
+    target = tmp_path / "new" / "deeper" / "Calib.toml"
+    r = smartroom("calibrate", "export", calib, "--format", "toml", "--out", target)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert_same_projection(known_cameras(), list(read_cameras([target])[1].cameras))
+    r = smartroom("calibrate", "export", calib, "--format", "opencv", "--out", tmp_path / "new2" / "ocv")
+    assert r.returncode == 0 and len(list((tmp_path / "new2" / "ocv").glob("*.yml"))) == len(known_cameras())
+    (tmp_path / "file").write_text("")
+    for fmt, out, message in (("toml", tmp_path / "file" / "x.toml", "cannot write there"),
+                              ("toml", tmp_path / "new", "is a folder")):
+        r = smartroom("calibrate", "export", calib, "--format", fmt, "--out", out)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
 
 
 def test_exported_toml_reads_back_with_tomllib(tmp_path):

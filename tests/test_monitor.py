@@ -32,7 +32,7 @@ def test_view_waits_until_frames_flow():
     view = PipelineView()
     view.update(_stats("grabber", 0, 0.0, 0.0, fps_recording=25.0))
     view.update(_stats("segmentation", 1, 0.0, 0.0))
-    assert view.line().startswith("rtf=- verdict=waiting |")
+    assert view.line() == "rtf=- verdict=waiting"
     assert "WAITING" in view.table().upper()
 
 
@@ -48,6 +48,51 @@ def test_view_waits_until_every_stage_has_put_out_a_frame():
     assert view.line().startswith("rtf=0.04 verdict=behind bottleneck=slow")
 
 
+def test_journal_lines_are_short():
+    """Not on a terminal (the systemd journal): a short line for the pipeline and one per
+    stage, not one line of a thousand characters."""
+    view = PipelineView()
+    view.update(_stats("grabber", 0, 25.0, 0.05, fps_recording=25.0))
+    for n, name in enumerate(("segmentation", "reconstruction", "cca", "tracking", "pose", "recorder")):
+        view.update(_stats(name, n + 1, 20.0, 0.5, frames_dropped=12345, cpu_percent=99.0, tracks=3))
+    lines = [view.line(), *view.stage_lines()]
+    assert lines[0] == "rtf=0.80 verdict=behind bottleneck=segmentation busy=0.50 tracks=3"
+    assert [ln.split(":")[0] for ln in lines[1:]] == ["grabber", "segmentation", "reconstruction", "cca", "tracking",
+                                                      "pose", "recorder"]
+    assert max(len(ln) for ln in lines) < 110, max(lines, key=len)
+
+
+@pytest.mark.integration
+def test_headless_on_a_terminal_shows_the_table(long_recording, tmp_path, spine_layout):
+    """``--headless`` means no viewer, not no terminal: on a terminal the monitor redraws
+    its table (the README's "live table on a terminal")."""
+    import os
+    import pty
+    import subprocess
+    import sys
+    from tests.conftest import ROOT
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--recording", str(long_recording), "--frames",
+                             "60", "--headless", "--no-pace", "--layout", str(spine_layout), "--out",
+                             str(tmp_path / "o")], stdin=slave, stdout=slave, stderr=slave, cwd=ROOT,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 1 << 16)
+        except OSError:   # the terminal's other end closed: the run is over
+            break
+        if not data:
+            break
+        chunks.append(data)
+    assert proc.wait(120) == 0
+    os.close(master)
+    screen = b"".join(chunks).decode(errors="replace")
+    assert "\x1b[H\x1b[2J" in screen and "smartroom monitor |" in screen and "fps out" in screen
+    assert "monitor: rtf=" not in screen                           # not the journal's lines
+
+
 def _monitor_lines(stdout):
     out = []
     for ln in stdout.splitlines():
@@ -60,7 +105,7 @@ def _monitor_lines(stdout):
 @pytest.mark.integration
 def test_paced_recording_runs_at_rtf_one(long_recording, tmp_path, spine_layout):
     r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", tmp_path / "o",
-                  "--layout", spine_layout)
+                  "--layout", spine_layout, "--set", "monitor.line_period=1")
     assert r.returncode == 0, r.stderr
     lines = _monitor_lines(r.stdout)
     assert lines[-1]["verdict"] != "waiting"
@@ -77,7 +122,7 @@ def test_slowed_stage_is_named_the_bottleneck(long_recording, tmp_path):
     path = tmp_path / "slow.yaml"
     path.write_text(yaml.safe_dump(layout))
     r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--layout", path,
-                  "--out", tmp_path / "o")
+                  "--out", tmp_path / "o", "--set", "monitor.line_period=1")
     assert r.returncode == 0, r.stderr
     lines = _monitor_lines(r.stdout)
     running = [d for d in lines[:-1] if d["verdict"] != "waiting"][1:]  # past start-up and the first window

@@ -48,6 +48,10 @@ def test_run_passes_every_frame_through_separate_processes(tiny_recording, tmp_p
     assert (out / "layout.yaml").is_file()
     assert not list(out.glob("*.partial"))
     assert "segmentation" in r.stdout and "RTF" in r.stdout  # the summary table
+    # and what to do next, in the last line
+    assert r.stderr.splitlines()[-1] == (f"smartroom: results in {out}; next: smartroom view {out} (replay in the "
+                                         f"browser), smartroom export {out} (BVH, C3D, TRC, CSV for Blender, Mokka, "
+                                         "OpenSim)"), r.stderr
 
 
 def test_no_pace_runs_faster_than_real_time(tiny_recording, tmp_path, spine_layout):
@@ -58,6 +62,8 @@ def test_no_pace_runs_faster_than_real_time(tiny_recording, tmp_path, spine_layo
     s = _stats(out)
     assert s["stages"]["grabber"]["frames_out"] == 60
     assert s["rtf"] > 1.0
+    # nothing to replay or export (no tracks, poses nor voxels): nothing proposed
+    assert r.stderr.splitlines()[-1] == f"smartroom: results in {out}"
 
 
 def _one_line_error(r):

@@ -71,3 +71,14 @@ def test_inbox_keeps_the_newest_per_key_in_arrival_order():
     for i in range(5):
         deep.put("k", i)
     assert [deep.get(0)[1] for _ in range(3)] == [2, 3, 4]
+
+
+def test_the_end_of_run_table_writes_milliseconds_as_ms():
+    from app.report import summary_table
+    stages = {"grabber": {"stage": "grabber", "order": 0,
+                          "figures": {"frames_in": 100, "frames_out": 100, "fps": 25.0,
+                                      "latency_ms": {"p50": 0.5, "p95": 0.7}, "process_ms": {"mean": 3.3}}}}
+    lines = summary_table(summarise(stages, 25.0, 100)).splitlines()
+    head, row = lines[0], lines[2]
+    assert row.split()[-4:] == ["0.5ms", "0.7ms", "3.3ms", "0"]          # as the live table writes them
+    assert head.index("lat p50") + len("lat p50") == row.index("0.5ms") + len("0.5ms")   # under its column

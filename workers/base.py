@@ -42,13 +42,14 @@ from typing import ClassVar
 
 from app.admission import FrameWindow, Rejections
 from app.bus import Keys, Publisher, decode_sample, open_session
+from app.compiles import CompileClock
 from app.files import write_json
 from app.layout import Layout, WorkerSpec   # the layout's types, not its loader (which imports the workers)
 from app.messages import Ack, EndOfStream, Message, MessageError, Stats
 from app.stats import StageLedger
 from workers.restarts import Restarts
 
-__all__ = ["Worker", "Inbox", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
+__all__ = ["Worker", "Inbox", "configure_logging", "FILE_ONLY", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
 STATE_PERIOD_S = 0.5
@@ -187,6 +188,9 @@ class Worker(Restarts):
         self.exit_code = EXIT_ENDED
         self._lock = threading.Lock()
         self._publish_lock = threading.Lock()
+        self.compiles = CompileClock(on_start=self._compiling)   # numba kernels compiled in this process
+        self._said_compiling = 0.0
+        self.setup_s: float | None = None
         self._init_restarts()
 
     # -- what subclasses provide ------------------------------------------------------
@@ -332,6 +336,14 @@ class Worker(Restarts):
             self._control_pub(self.keys.stats(self.name)).put(
                 Stats(frame=-1, stamp=time.time(), worker=self.name, stage=self.stage, final=False,
                       figures={"status": text, "order": self.ORDER}))
+
+    def _compiling(self) -> None:
+        """A kernel compile begins (numba, a first run): said as the worker's status (its
+        loop stands still meanwhile, so no stats come), at most every few seconds."""
+        now = time.monotonic()
+        if now - self._said_compiling > STATS_PERIOD_S * 3:
+            self._said_compiling = now
+            self.status("compiling kernels (a first run only: they are cached for the next)")
 
     def reject(self, key: str, reason: str, detail: str = "") -> None:
         """Count and drop a message this worker cannot use."""
@@ -521,6 +533,9 @@ class Worker(Restarts):
         figures["resent"] = self.resent
         figures["repeats_skipped"] = self.repeats_skipped
         figures["rejected"] = self.rejections.figures()
+        figures.update(self.compiles.figures())
+        if self.setup_s is not None:
+            figures["setup_s"] = round(self.setup_s, 3)
         if self._snapshot_ms:   # the cost of the state arrays (state_arrays, savez, rename), median ms
             figures["snapshot_ms"] = round(float(sorted(self._snapshot_ms)[len(self._snapshot_ms) // 2]), 2)
         figures.update(self.extra_figures())
@@ -544,6 +559,7 @@ class Worker(Restarts):
         return {}
 
     def _periodic(self) -> None:
+        self.compiles.install(only_if_loaded=True)   # numba imported on a path first taken
         now = time.monotonic()
         if now - self._last_stats >= STATS_PERIOD_S:
             self._publish_stats()
@@ -619,6 +635,7 @@ class Worker(Restarts):
         """Run the worker until its stream ends or it is told to stop; the exit code."""
         self._install_signals()
         self._watch_launcher()
+        self.compiles.install(only_if_loaded=True)   # kernels' modules are imported with the kind
         self.session = open_session(self.layout.bus.for_worker(), mode="client")
         try:
             self._wait_for = set(self.upstream())
@@ -631,7 +648,10 @@ class Worker(Restarts):
             # kernels compiled on a cold cache) waits in its inbox instead of going nowhere
             for key in self.subscriptions():
                 self._subs.append(self.session.declare_subscriber(key, self._on_sample))
+            t0 = time.time()
             self.setup()
+            self.setup_s = time.time() - t0   # tables, background models, kernels: start-up, reported apart
+            self.compiles.install(only_if_loaded=True)   # numba imported by the set-up
             self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             if "stats" in self.CONSUMES:
@@ -652,7 +672,8 @@ class Worker(Restarts):
             self._finish()
         if self._signal is not None and not self.input_ended:
             why = {signal.SIGTERM: "SIGTERM", signal.SIGINT: "SIGINT"}.get(self._signal, "its launcher is gone")
-            self.log.warning("stopped (%s) before its input ended; no end of stream sent", why)
+            # the launcher says why it stopped a worker, and restarts one stopped from outside
+            self.log.info("stopped (%s) before its input ended; no end of stream sent", why)
             self.exit_code = EXIT_TERMINATED
         return self.exit_code
 
@@ -706,7 +727,49 @@ class Worker(Restarts):
         return self.ledger.last_frame + 1, 0, 0.0
 
 
-def configure_logging(name: str, level: int = logging.INFO) -> None:
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format=f"%(asctime)s.%(msecs)03d [{name}] %(levelname)s %(message)s",
-                        datefmt="%H:%M:%S")
+LOG_BYTES = 1 << 20      # a worker's log file rotates at 1 MiB ...
+LOG_BACKUPS = 3          # ... keeping 3 older ones: at most 4 MiB a worker, however long the room runs
+
+
+class _JournalFormatter(logging.Formatter):
+    """One line per record (date, time, worker, pid, level, message); the lines of a
+    traceback follow it indented, so a reader (or grep, or journald) keeps them together."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        first, _, rest = text.partition("\n")
+        return first + ("".join("\n  " + line for line in rest.split("\n")) if rest else "")
+
+
+#: ``extra`` of a log record meant for the log file only (its one-line form is said on the terminal)
+FILE_ONLY = {"file_only": True}
+
+
+def configure_logging(name: str, level: int = logging.INFO, log_dir=None) -> Path | None:
+    """Log lines on stderr at ``level`` (the terminal: warnings unless --verbose) and, with
+    ``log_dir`` (the run's ``<out>/logs``), everything from INFO up into ``<name>.log``,
+    rotated at :data:`LOG_BYTES` with :data:`LOG_BACKUPS` older files; the log file's path."""
+    from logging.handlers import RotatingFileHandler
+
+    root = logging.getLogger()
+    root.setLevel(min(level, logging.INFO) if log_dir else level)
+    terminal = logging.StreamHandler(sys.stderr)
+    terminal.setLevel(level)
+    terminal.addFilter(lambda record: not getattr(record, "file_only", False))
+    terminal.setFormatter(logging.Formatter(f"%(asctime)s.%(msecs)03d [{name}] %(levelname)s %(message)s",
+                                            datefmt="%H:%M:%S"))
+    root.addHandler(terminal)
+    if not log_dir:
+        return None
+    path = Path(log_dir) / f"{name}.log"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handler = RotatingFileHandler(path, maxBytes=LOG_BYTES, backupCount=LOG_BACKUPS, encoding="utf-8")
+    except OSError as exc:
+        logging.getLogger(f"smartroom.{name}").warning("cannot write the log file %s (%s)", path, exc.strerror)
+        return None
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(_JournalFormatter(f"%(asctime)s.%(msecs)03d {name}[%(process)d] %(levelname)s "
+                                           "%(name)s: %(message)s", datefmt="%Y-%m-%d %H:%M:%S"))
+    root.addHandler(handler)
+    return path

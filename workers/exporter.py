@@ -3,8 +3,10 @@
 :class:`app.export.live.LiveExport`).
 
 Parameters: ``formats`` (any of bvh, c3d, trc, csv), ``out`` (a folder, relative to the
-run's results folder unless absolute) and ``up`` ("" for each format's default, "y"
-for OpenSim-style y-up, "z" for the room's own axes; BVH is always y-up). The files are
+run's results folder unless absolute), ``up`` ("" for each format's default, "y"
+for OpenSim-style y-up, "z" for the room's own axes; BVH is always y-up) and
+``min_frames`` (tracks reported in fewer frames are left out; -1, the default, is one
+second of frames, as ``smartroom export``; 0 keeps every track). The files are
 complete, with their final names, only once the run's input has ended; meanwhile the
 TRC and CSV files grow as readable ``.partial`` prefixes.
 """
@@ -32,8 +34,10 @@ class Exporter(Worker):
         "formats": list(FORMATS),   # which files to write
         "out": "export",            # folder, relative to the results folder unless absolute
         "up": "",                   # "" per-format default (TRC y-up, C3D/CSV z-up), or "y" / "z"
+        "min_frames": -1,           # tracks reported in fewer frames are left out (-1: 1 s of frames; 0: none)
     }
     CHOICES = {"up": ("", "y", "z")}
+    RANGES = {"min_frames": (-1, 1 << 40)}
 
     @classmethod
     def acknowledges(cls, spec, layout) -> bool:
@@ -85,7 +89,12 @@ class Exporter(Worker):
         if getattr(self, "input_ended", True):   # the true end of the run: complete the files
             for joined in self.shares.flush():
                 self._add(joined)
-            paths = self.export.finish()
+            from app.export.poses import default_min_frames, short_tracks_line
+            n = self.params["min_frames"]
+            n = default_min_frames(self.export.fps) if n < 0 else n
+            paths, short = self.export.finish(n)
+            if short:
+                self.log.info("%s (min_frames)", short_tracks_line(short, n))
             self.log.info("exported %d file(s) to %s", len(paths), self.export.folder)
         else:                                    # stopped early: a restart carries on
             self.export.abandon()

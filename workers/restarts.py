@@ -66,6 +66,9 @@ class Restarts:
         #: the newest frame an earlier incarnation put out: its outputs may not have left before
         #: it died, so it is put out again (worked on anew, or the outputs kept with the state arrays)
         self._redo: int | None = None
+        #: the newest frame put out before this incarnation (-1: none): only frames up to it
+        #: can have been put out by an earlier incarnation (this one's own are not repeats)
+        self._earlier_newest = -1
         self._redo_outputs: list[tuple[str, bytes]] = []
         self._redo_epoch = 0
         lose = [f for w, _, f in (p.rpartition(":") for p in os.environ.get(FAILPOINT_ENV, "").split(","))
@@ -205,12 +208,14 @@ class Restarts:
 
     def put_out_before(self, frame: int) -> bool:
         """An earlier incarnation of this worker put ``frame`` out (its ledger comes back from
-        the journal): not worked on again. Except the newest such frame when its outputs were
+        the journal): not worked on again. Only the earlier incarnations' frames: a frame this
+        incarnation put out may still have inputs to come (a sink that shows each input as it
+        comes, the viewer, puts a frame out with its voxels, before its tracks and poses). Except the newest such frame when its outputs were
         not kept with the state arrays: the journal says "put out" when ``put()`` returns, and
         a worker killed then may not have sent it yet; it is worked on again and put out
         again (consumers skip repeats)."""
-        return (self.SKIPS_FINISHED and self.incarnation > 0 and frame in self.ledger.done
-                and not (frame == self._redo and not self._redo_outputs))
+        return (self.SKIPS_FINISHED and self.incarnation > 0 and frame <= self._earlier_newest
+                and frame in self.ledger.done and not (frame == self._redo and not self._redo_outputs))
 
     def _put_out_again(self, msg: Message) -> None:
         """The outputs of the newest frame put out before the restart, kept with the state
@@ -350,6 +355,7 @@ class Restarts:
         except OSError:
             pass
         self.ledger.restore(state.get("ledger") or {}, journal)
+        self._earlier_newest = self.ledger.newest_out
         if self.ledger.newest_out >= 0 and self.PRODUCES:   # a sink's outputs are its files
             self._redo = self.ledger.newest_out
             epoch = state.get("out_epoch")

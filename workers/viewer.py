@@ -1,19 +1,24 @@
 """Viewer: the room, its cameras and the pipeline's results live in a browser (meshcat).
 
-Draws the room box and floor, each camera's frustum and name, the voxels in their own
-colours (thinned for display when there are many), one ellipsoid, id label and trail
-per track, one skeleton per pose (inactive limbs grey), and the pipeline's real-time
-factor at the top of the view. It is a sink that never slows the pipeline: its
-inboxes keep only the newest message of each kind, each kind is drawn at most
-``max_rate`` times a second, and nothing is redrawn that did not change.
+Draws the room box and floor, each camera's frustum and name, and the frame on show:
+its voxels in their own colours (thinned for display when there are many), one
+ellipsoid, id label and trail per track, one skeleton per pose (bones and joints; a
+limb the model lost grey and thinner), and the pipeline's real-time factor at the top of
+the view. What is on show is one frame: a frame's voxels, tracks and poses are put
+together (:class:`app.viewer.frames.FrameAssembly`) and drawn in one step once all of
+them are in (a stage that is away is not waited for), so the skeletons never lag the
+voxels they were fitted to. It is a sink that never slows the pipeline: its inboxes keep
+only the newest messages, at most ``max_rate`` frames a second are drawn, and nothing
+is redrawn that did not change.
 
 The page is served by meshcat's own server class running inside this process
 (:mod:`app.viewer.server`), on ``bind`` (``127.0.0.1`` unless the layout says, e.g.,
-``0.0.0.0``) and ``port`` (0: the first free port from 7000). The URL to open is
-printed on stderr when the viewer starts, and the monitor's table keeps it on screen.
-``--headless`` runs do not start it. With ``linger`` (``smartroom run --linger``) the
-page, once the stream has ended and this viewer is gone, reloads into the replay of the
-run that ``smartroom run`` then serves at the same address until Ctrl-C.
+``0.0.0.0``) and ``port`` (0: the first free port from 7000; a restarted viewer takes
+its earlier incarnation's port again). The URL to open is printed on stderr when the
+viewer starts, and the monitor's table keeps it on screen. ``--headless`` runs do not
+start it. The page follows its server: when the viewer is restarted after a crash, or
+the stream has ended and ``smartroom run --linger`` serves the run's replay at the same
+address, it reloads by itself.
 """
 from __future__ import annotations
 
@@ -23,8 +28,11 @@ import time
 from app.errors import InputError
 from app.messages import Poses, Stats, Tracks, Voxels
 from app.monitor import REAL_TIME, PipelineView
-from app.viewer.scene import VOXELS, Scene
+from app.pose_shares import SharedPoses
+from app.viewer.frames import FrameAssembly
+from app.viewer.scene import LIVE, Scene
 from app.viewer.server import MeshcatServer, ServerError
+from workers import producers_of
 from workers.base import Worker
 
 KINDS = ((Voxels, "voxels"), (Tracks, "tracks"), (Poses, "poses"))
@@ -33,34 +41,27 @@ OK_COLOUR = (0.55, 1.0, 0.55)
 BEHIND_COLOUR = (1.0, 0.6, 0.25)
 
 
-def reload_when_back() -> dict:
-    """A page control whose creation makes the page wait, once this server has gone, for
-    the page to be served again (``smartroom run --linger`` serves the run's replay at the
-    same address) and reload it; the button reloads at once."""
-    from app.viewer import three
-    js = ("(() => { const retry = () => fetch(location.href, {cache: 'no-store'})"
-          ".then(() => location.reload()).catch(() => setTimeout(retry, 500)); "
-          "viewer.connection.onclose = () => setTimeout(retry, 500); return () => location.reload(); })()")
-    return three.set_control("replay the run", js)
-
-
 class Viewer(Worker):
     KIND = "viewer"
     CONSUMES = ("voxels", "tracks", "poses", "stats")
     ACCEPTS = (Voxels, Tracks, Poses)
     DISPLAY = True
+    INBOX_DEPTH = 4      # a few frames of each kind: a frame waits for its slowest part
+    #: a display has no results to duplicate: what comes after a restart is drawn as it comes
+    SKIPS_FINISHED = False
     DEFAULTS = {
         "bind": "127.0.0.1",          # address the page listens on (0.0.0.0: every interface)
         "port": 0,                    # 0: the first free port from 7000 (meshcat's default)
-        "max_rate": 15.0,             # most redraws per second of each kind (voxels, tracks, poses)
+        "max_rate": 15.0,             # most frames drawn per second
         "max_points": 30000,          # voxels drawn at most per frame (surface first, then thinned)
         "trail": 25,                  # past positions drawn behind each track
         "ellipsoid": [0.3, 0.3, 0.9],  # semi-axes (m) of a person around the track's centroid
         "frustum_depth": 0.4,         # length (m) of the drawn camera frustums
-        "linger": False,              # smartroom run --linger: the page reloads into the run's replay at the end
+        "wait_s": 2.0,                # a kind (voxels, tracks, poses) silent this long is not waited for
+        "linger": False,              # smartroom run --linger: the page goes on to the run's replay at the end
     }
     RANGES = {"port": (0, 65535), "max_rate": (0.1, 120.0), "max_points": (0, 10_000_000), "trail": (0, 10000),
-              "frustum_depth": (0.0, 10.0)}
+              "frustum_depth": (0.0, 10.0), "wait_s": (0.0, 3600.0)}
 
     def setup(self) -> None:
         p = self.params
@@ -72,14 +73,13 @@ class Viewer(Worker):
         self.scene = Scene(calib.room_min if calib else None, calib.room_max if calib else None,
                            calib.cameras if calib else (), frustum_depth=p["frustum_depth"],
                            ellipsoid=p["ellipsoid"], trail=p["trail"], max_points=p["max_points"])
-        try:
-            self.server = MeshcatServer(p["bind"], p["port"], latest_only=[VOXELS]).start()
-        except ServerError as exc:
-            raise InputError(f"viewer {self.name}: {exc}") from None
+        self.server = self._serve(p["bind"], p["port"] or getattr(self, "_earlier_port", 0))
         self.pipeline = PipelineView(self.layout.run.fps)
         self.period = 1.0 / p["max_rate"]
-        self.pending: dict[str, object] = {}
-        self.due = {kind: 0.0 for _, kind in KINDS}
+        self.assembly = FrameAssembly(p["wait_s"])
+        # several pose workers share a frame's people: their poses are joined first
+        self.shares = SharedPoses(producers_of(self.layout, "poses"), max_pending=8)
+        self.due = 0.0
         self.shown_frame = -1
         self.failed = False
         self._next_status = 0.0
@@ -87,6 +87,30 @@ class Viewer(Worker):
         self._send(self.scene.setup())
         print(f"{self.name}: open {self.server.url}", file=sys.stderr, flush=True)
         self.log.info("serving the view at %s", self.server.url)
+
+    def _serve(self, bind: str, port: int) -> MeshcatServer:
+        """The page's server on ``port`` (the earlier incarnation's, when restarted: the
+        open pages come back to it), else on the first free port."""
+        try:
+            return MeshcatServer(bind, port, latest_only=[LIVE]).start()
+        except ServerError as exc:
+            if port == self.params["port"] or not port:
+                raise InputError(f"viewer {self.name}: {exc}") from None
+            self.log.warning("port %d of the earlier viewer is taken (%s): open pages must be opened again", port, exc)
+        try:
+            return MeshcatServer(bind, 0, latest_only=[LIVE]).start()
+        except ServerError as exc:
+            raise InputError(f"viewer {self.name}: {exc}") from None
+
+    def extra_state(self) -> dict:
+        server = getattr(self, "server", None)
+        port = server.port if server is not None else getattr(self, "_earlier_port", None)   # (before set-up)
+        return {"port": port} if port else {}
+
+    def restore_state(self, state: dict) -> None:
+        port = state.get("port")
+        if isinstance(port, int) and 0 < port < 65536:
+            self._earlier_port = port
 
     def _calibration(self):
         calib = self.run_calibration()
@@ -96,11 +120,16 @@ class Viewer(Worker):
 
     # -- messages -------------------------------------------------------------------------
     def handle(self, key: str, msg) -> None:
-        for cls, kind in KINDS:
-            if isinstance(msg, cls):
-                self.pending[kind] = msg   # the newest of each kind wins
-                break
+        now = time.monotonic()
+        if isinstance(msg, Poses):
+            for joined in self.shares.add(msg):
+                self.assembly.add("poses", joined, now)
+        else:
+            self.assembly.add("voxels" if isinstance(msg, Voxels) else "tracks", msg, now)
         self._draw()
+
+    def new_epoch(self, epoch: int) -> None:
+        self.assembly.reset()
 
     def on_stats(self, msg: Stats) -> None:   # zenoh's thread: PipelineView locks
         if msg.worker != self.name:
@@ -112,10 +141,11 @@ class Viewer(Worker):
             self._status()
 
     def flush(self) -> None:
+        now = time.monotonic()
+        for joined in self.shares.flush():
+            self.assembly.add("poses", joined, now)
         self._draw(force=True)
         self._status(ended=True)
-        if self.params["linger"]:
-            self._send([reload_when_back()])
 
     def close(self) -> None:
         server = getattr(self, "server", None)
@@ -125,27 +155,28 @@ class Viewer(Worker):
     # -- drawing --------------------------------------------------------------------------
     def _draw(self, force: bool = False) -> None:
         now = time.monotonic()
-        for _, kind in KINDS:
-            msg = self.pending.get(kind)
-            if msg is None or (now < self.due[kind] and not force):
-                continue
-            del self.pending[kind]
-            self.due[kind] = max(self.due[kind] + self.period, now)
-            self._send(getattr(self, f"_{kind}")(msg))
-            self.shown_frame = max(self.shown_frame, msg.frame)
-            self.ledger.emitted(msg.frame, msg.stamp)
-
-    def _voxels(self, msg: Voxels) -> list[dict]:
-        cmds = self.scene.room_from_grid(msg.origin, msg.dims, msg.voxel_size)
-        if msg.indices is None or len(msg.indices) == 0:
-            return cmds + self.scene.voxels([], None, msg.voxel_size)
-        return cmds + self.scene.voxels(msg.centres(), msg.colours, msg.voxel_size, msg.surface)
-
-    def _tracks(self, msg: Tracks) -> list[dict]:
-        return self.scene.tracks(msg.ids, msg.positions)
-
-    def _poses(self, msg: Poses) -> list[dict]:
-        return self.scene.poses(msg.tracks, msg.joints, msg.active)
+        if now < self.due and not force:
+            return
+        picked = self.assembly.take(now)
+        if picked is None:
+            return
+        (epoch, frame), parts = picked
+        self.due = max(self.due + self.period, now)
+        vox, tracks, poses = parts.get("voxels"), parts.get("tracks"), parts.get("poses")
+        cmds = []
+        if vox is not None:
+            cmds += self.scene.room_from_grid(vox.origin, vox.dims, vox.voxel_size)
+        cmds += self.scene.frame(
+            frame, epoch=epoch,
+            voxels=None if vox is None else (vox.centres() if vox.indices is not None and len(vox.indices) else (),
+                                              vox.colours, vox.voxel_size, vox.surface),
+            tracks=None if tracks is None else (tracks.ids, tracks.positions),
+            poses=None if poses is None else (poses.tracks, poses.joints, poses.active))
+        self._send(cmds)
+        if frame != self.shown_frame:
+            self.shown_frame = frame
+            first = min(parts.values(), key=lambda m: m.stamp or float("inf"))
+            self.ledger.emitted(frame, first.stamp)
 
     def _status(self, ended: bool = False) -> None:
         self._next_status = time.monotonic() + STATUS_PERIOD_S
@@ -163,12 +194,12 @@ class Viewer(Worker):
         if late:   # live views the reconstruction gave up on, per camera
             parts.append("late " + " ".join(f"{c}:{n}" for c, n in sorted(late.items())))
         if ended:
-            parts.append("stream ended")
+            parts.append("stream ended" + (": the replay follows" if self.params["linger"] else ""))
         colour = (1.0, 1.0, 1.0) if rtf is None else OK_COLOUR if rtf >= REAL_TIME else BEHIND_COLOUR
         text = " | ".join(parts)
         if (text, colour) != self._shown_status:   # nothing changed: nothing to send
             self._shown_status = (text, colour)
-            self._send(self.scene.status(text, colour))
+            self._send(self.scene.status(text, colour, {"frame": self.shown_frame, "ended": ended}))
 
     def _send(self, commands: list[dict]) -> None:
         if self.failed:
@@ -184,4 +215,5 @@ class Viewer(Worker):
         server = getattr(self, "server", None)
         if server is None:
             return {}
-        return {"url": server.url, "clients": server.clients, "voxels_shown": self.scene.voxels_shown}
+        return {"url": server.url, "clients": server.clients, "voxels_shown": self.scene.voxels_shown,
+                "frame_shown": self.shown_frame}

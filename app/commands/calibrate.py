@@ -461,16 +461,24 @@ def _export(args) -> int:
     from calibration import load_calibration
     from calibration.formats import write_opencv, write_toml
 
+    from app.errors import InputError
+
     calib = load_calibration(args.file)
-    if args.format == "toml":
-        write_toml(list(calib.cameras), args.out)
-        print(f"wrote {args.out} ({len(calib.cameras)} cameras, aniposelib/Pose2Sim TOML, metres)")
-    else:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        for c in calib.cameras:
-            write_opencv(c, out / f"{c.name}.yml")
-        print(f"wrote {len(calib.cameras)} OpenCV files into {out}/")
+    out = Path(args.out)
+    try:   # the folder it goes into is made, as for any result (a toml file's, the opencv folder)
+        if args.format == "toml":
+            if out.is_dir():
+                raise InputError(f"--out {out}: is a folder; give the .toml file to write")
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_toml(list(calib.cameras), out)
+            print(f"wrote {out} ({len(calib.cameras)} cameras, aniposelib/Pose2Sim TOML, metres)")
+        else:
+            out.mkdir(parents=True, exist_ok=True)
+            for c in calib.cameras:
+                write_opencv(c, out / f"{c.name}.yml")
+            print(f"wrote {len(calib.cameras)} OpenCV files into {out}/")
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write there ({exc.strerror or type(exc).__name__})") from None
     return 0
 
 

@@ -18,6 +18,9 @@ def add_arguments(p) -> None:
                    help="up axis of TRC/C3D/CSV: y for OpenSim, z = the room's own axes "
                         f"(defaults: {', '.join(f'{k} {v}' for k, v in DEFAULT_UP.items())}; BVH is always y-up)")
     p.add_argument("--fps", type=float, help="frame rate (default: the run's, from its layout.yaml or stats.json)")
+    p.add_argument("--min-frames", type=int, metavar="N",
+                   help="leave out tracks reported in fewer than N frames (default: 1 s of frames; 0 keeps all; "
+                        "a track named with --track is always exported)")
 
 
 def main(args) -> int:
@@ -25,9 +28,21 @@ def main(args) -> int:
     from app.export import export_series
     from app.export.poses import load_poses
 
+    from app.export.poses import default_min_frames, short_tracks_line
+
     series = load_poses(args.results, args.fps).select(args.track)
     if not series.tracks:
         raise InputError(f"{args.results}: poses.jsonl has no tracked person to export")
+    if args.min_frames is not None and args.min_frames < 0:
+        raise InputError(f"--min-frames must be 0 or more, got {args.min_frames}")
+    if args.track is None:
+        min_frames = default_min_frames(series.fps) if args.min_frames is None else args.min_frames
+        series, short = series.without_short(min_frames)
+        if short:
+            print(f"smartroom: {short_tracks_line(short, min_frames)} (--min-frames)", file=sys.stderr)
+        if not series.tracks:
+            raise InputError(f"{args.results}: no track of {min_frames} frames or more to export; "
+                             "lower --min-frames (0 keeps every track)")
     formats = args.format or list(FORMATS)
     out = Path(args.out) if args.out else Path(args.results) / "export"
     if len(formats) > 1 and out.suffix:

@@ -37,16 +37,29 @@ def main(args) -> int:
     print(f"smartroom: {here} workers here" + (f" ({elsewhere} on other hosts)" if elsewhere else "")
           + f" on {source}; results in {run.out}", file=sys.stderr)
     try:
-        rc = launcher.run()
+        rc = launcher.run()   # bad input raises InputError: its one line (the CLI's) is all there is to say
     finally:
         stats = Path(run.out) / "stats.json"
-        if stats.is_file():
-            summary = json.loads(stats.read_text())
-            print(summary_table(summary))
+        summary = json.loads(stats.read_text()) if stats.is_file() else {}
+        if summary and not launcher.input_error:
+            if summary.get("frames_delivered"):   # no frame went through: no table of zeros
+                print(summary_table(summary))
             for reason in summary.get("reasons", []):
                 print(f"smartroom: incomplete: {reason}", file=sys.stderr)
-        print(f"smartroom: results in {run.out}", file=sys.stderr)
+            print(f"smartroom: results in {run.out}{next_steps(Path(run.out), lingering)}", file=sys.stderr)
     if lingering and rc == 0:
         from app.commands.view import linger
         rc = linger(layout, run.out)
     return rc
+
+
+def next_steps(out: Path, lingering: bool = False) -> str:
+    """What to do with the results, said after the run: replay them, export the people."""
+    import shlex
+    folder = shlex.quote(str(out))
+    steps = []
+    if not lingering and any((out / f).is_file() for f in ("tracks.jsonl", "poses.jsonl", "voxels.bin")):
+        steps.append(f"smartroom view {folder} (replay in the browser)")
+    if (out / "poses.jsonl").is_file():
+        steps.append(f"smartroom export {folder} (BVH, C3D, TRC, CSV for Blender, Mokka, OpenSim)")
+    return "; next: " + ", ".join(steps) if steps else ""

@@ -32,7 +32,6 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
     open paused on the last frame; ``allow_empty``: a run with nothing to replay shows the room."""
     from app.errors import InputError
     from app.viewer.replay import load_run, replay_commands
-    from app.viewer.scene import VOXELS
     from app.viewer.server import MeshcatServer, ServerError
 
     if max_points <= 0:
@@ -48,14 +47,14 @@ def serve(results, bind: str = "127.0.0.1", port: int = 0, frame: int | None = N
         raise InputError(f"--frame {frame} is outside the run's frames {frames[0]}..{frames[-1]}")
     _, commands = replay_commands(data, trail=trail, start=frame, paused=paused)
     try:
-        server = MeshcatServer(bind, port, latest_only=[VOXELS]).start()
+        server = MeshcatServer(bind, port).start()
     except ServerError:
         if not port:
             raise
         server = None
     if server is None:   # the port is taken: any free one
         try:
-            server = MeshcatServer(bind, 0, latest_only=[VOXELS]).start()
+            server = MeshcatServer(bind, 0).start()
         except ServerError as exc:
             raise InputError(str(exc)) from None
     done = threading.Event()

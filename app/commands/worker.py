@@ -35,9 +35,9 @@ def main(args) -> int:
 
     from app.config import load_layout
     from app.errors import InputError, Stalled
-    from app.launcher import ERROR_DIR, LAUNCHED_ENV
+    from app.launcher import ERROR_DIR
     from workers import worker_class
-    from workers.base import EXIT_INPUT, EXIT_STALLED, configure_logging
+    from workers.base import FILE_ONLY, configure_logging
 
     layout = load_layout(args.layout)
     run = layout.run
@@ -52,32 +52,52 @@ def main(args) -> int:
     if args.connect:
         layout.bus.connect = list(args.connect)
     spec = layout.worker(args.name)
-    configure_logging(spec.name, logging.INFO if args.verbose else logging.WARNING)
+    log_file = configure_logging(spec.name, logging.INFO if args.verbose else logging.WARNING,
+                                 Path(run.out) / ERROR_DIR if run.out else None)
     try:
         worker = worker_class(spec.kind)(spec, layout)
         worker.early_signals = early
         return _exit(worker.run())
     except (InputError, Stalled) as exc:
-        code = EXIT_STALLED if isinstance(exc, Stalled) else EXIT_INPUT
-        written = False
-        if run.out:
-            d = Path(run.out) / ERROR_DIR
-            for attempt in range(2):
-                try:
-                    d.mkdir(parents=True, exist_ok=True)
-                    (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
-                    written = True
-                    break
-                except OSError:   # the disk is full: free the launcher's reserve once, else say it here
-                    (Path(run.out) / ".reserve").unlink(missing_ok=True)
-        if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
-            if not written:
-                print(f"smartroom: error: {exc}", file=sys.stderr)
-            return _exit(code)
-        if code == EXIT_STALLED:
-            print(f"smartroom: {spec.name}: {exc}", file=sys.stderr)
-            return _exit(code)
-        raise
+        logging.getLogger(f"smartroom.{spec.name}").error("%s", exc, extra=FILE_ONLY)   # said once, by the launcher
+        return _exit(_bad_input(exc, spec, run))
+    except Exception as exc:  # noqa: BLE001 - a crash: its traceback in the log file, one line here
+        if log_file is None:
+            raise
+        logging.getLogger(f"smartroom.{spec.name}").critical("crashed", exc_info=True, extra=FILE_ONLY)
+        what = str(exc).splitlines()[0][:200] if str(exc) else ""
+        print(f"smartroom: worker {spec.name} crashed: {type(exc).__name__}: {what} (traceback in {log_file})",
+              file=sys.stderr, flush=True)
+        return 1
+
+
+def _bad_input(exc, spec, run) -> int:
+    """Bad input or a stall: its one-line reason in ``<out>/logs/<name>.error`` for the
+    launcher to report, or on stderr for a worker started by hand; the exit code."""
+    from app.errors import InputError, Stalled
+    from app.launcher import ERROR_DIR, LAUNCHED_ENV
+    from workers.base import EXIT_INPUT, EXIT_STALLED
+
+    code = EXIT_STALLED if isinstance(exc, Stalled) else EXIT_INPUT
+    written = False
+    if run.out:
+        d = Path(run.out) / ERROR_DIR
+        for attempt in range(2):
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+                (d / f"{spec.name}.error").write_text(f"{exc}\n", encoding="utf-8")
+                written = True
+                break
+            except OSError:   # the disk is full: free the launcher's reserve once, else say it here
+                (Path(run.out) / ".reserve").unlink(missing_ok=True)
+    if os.environ.get(LAUNCHED_ENV):  # the launcher reports it, once
+        if not written:
+            print(f"smartroom: error: {exc}", file=sys.stderr)
+        return code
+    if code == EXIT_STALLED:
+        print(f"smartroom: {spec.name}: {exc}", file=sys.stderr)
+        return code
+    raise InputError(str(exc)) from None   # the CLI's one line
 
 
 def _exit(code: int) -> int:

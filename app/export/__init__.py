@@ -45,10 +45,10 @@ def export_series(series: PoseSeries, fmt: str, out, up: str | None = None) -> l
     else:
         paths = [out / n for n in names]
     paths[0].parent.mkdir(parents=True, exist_ok=True)
-    if fmt == "bvh":
+    if fmt == "bvh":   # one timeline for every file: each starts at the run's first frame
         from app.export.bvh import write_bvh
         for path, k in zip(paths, sorted(series.tracks)):
-            write_bvh(path, series.tracks[k], series.fps)
+            write_bvh(path, series.tracks[k], series.fps, span=(series.first, series.last))
     elif fmt == "trc":
         from app.export.trc import write_trc
         for path, k in zip(paths, sorted(series.tracks)):

@@ -10,6 +10,11 @@ Axes: BVH files are y-up, so the world's z-up coordinates (CONTRACT) are written
 ``(x, z, -y)`` (a rotation of -90 degrees about x), in metres. Blender's BVH importer
 with its defaults (forward -Z, up Y, scale 1) puts every joint back at its world
 position in the room. The rest pose (all angles zero) is the person standing, arms down.
+
+Time: the files of one run share its timeline (``span``): each starts at the run's first
+frame and ends at its last, the person holding their first pose until they appear and
+their last pose after they leave. Blender imports every file at its frame 1, so people
+who came in at different times stay in step.
 """
 from __future__ import annotations
 
@@ -60,9 +65,16 @@ def _num(v: float) -> str:
     return "0.000000" if s == "-0.000000" else s
 
 
-def bvh_text(track: TrackPoses, fps: float) -> str:
-    """The BVH file of one track."""
-    fit = fit_skeleton(track.joints, track.active)
+def bvh_text(track: TrackPoses, fps: float, span: tuple[int, int] | None = None) -> str:
+    """The BVH file of one track; ``span``: the run's frames ``(first, last)``, which the
+    motion covers (the pose held before the track's first frame and after its last)."""
+    fit = fit_skeleton(track.joints, track.active)   # fitted on the track's own frames
+    if span is not None:
+        before, after = track.first - span[0], span[1] - (track.first + len(track.joints) - 1)
+        if before < 0 or after < 0:
+            raise ValueError(f"track {track.track} reaches outside frames {span[0]}..{span[1]}")
+        fit.root = np.pad(fit.root, ((before, after), (0, 0)), mode="edge")
+        fit.local = np.pad(fit.local, ((before, after), (0, 0), (0, 0), (0, 0)), mode="edge")
     offsets = fit.offsets @ TO_BVH.T
     children = {b.name: [c for c in BONES if c.parent == b.name] for b in BONES}
     lines = ["HIERARCHY"]
@@ -98,6 +110,6 @@ def bvh_text(track: TrackPoses, fps: float) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_bvh(path, track: TrackPoses, fps: float) -> None:
+def write_bvh(path, track: TrackPoses, fps: float, span: tuple[int, int] | None = None) -> None:
     from app.files import write_atomic
-    write_atomic(path, bvh_text(track, fps))
+    write_atomic(path, bvh_text(track, fps, span))

@@ -8,7 +8,8 @@ place as rows are added). At the true end of the run :meth:`LiveExport.finish` w
 every format through :func:`app.export.export_series`, the very function behind
 ``smartroom export``, from the records, so the live files equal the offline export of
 the run's ``poses.jsonl``; each is written as ``.partial`` and renamed, and the journal
-is removed. Until then only ``.partial`` files exist: a run killed mid-way leaves no
+is removed; tracks shorter than ``min_frames`` are left out, as by ``smartroom export``.
+Until then only ``.partial`` files exist: a run killed mid-way leaves no
 file that looks complete. A restarted exporter (``resume``) reads the journal back and
 carries on.
 """
@@ -158,10 +159,13 @@ class LiveExport:
         """Stopped before the end (a restart will resume): keep the ``.partial`` files."""
         self._close_files()
 
-    def finish(self) -> list[Path]:
-        """The true end: write every format (``.partial``, then rename); the paths written."""
+    def finish(self, min_frames: int = 0) -> tuple[list[Path], dict[int, int]]:
+        """The true end: write every format (``.partial``, then rename) for the tracks of
+        ``min_frames`` frames or more; the paths written and the tracks left out (their
+        lengths), as ``smartroom export`` does."""
         self._close_files()
         series = series_from_records(list(self.records.values()), self.fps, where=str(self.folder / JOURNAL))
+        series, short = series.without_short(min_frames)
         paths = []
         if series.tracks:
             for fmt in self.formats:
@@ -171,4 +175,4 @@ class LiveExport:
             if stale.exists():   # a prefix export_series did not replace (no tracks)
                 stale.unlink()
         os.remove(self.folder / JOURNAL)
-        return paths
+        return paths, short

@@ -17,7 +17,8 @@ from app.errors import InputError
 from app.files import read_jsonl, read_yaml
 from app.messages import JOINTS
 
-__all__ = ["TrackPoses", "PoseSeries", "pose_record", "series_from_records", "load_poses", "results_fps"]
+__all__ = ["TrackPoses", "PoseSeries", "pose_record", "series_from_records", "load_poses", "results_fps",
+           "default_min_frames", "short_tracks_line"]
 
 DECIMALS = 4  # metres: 0.1 mm, as the recorder writes poses.jsonl
 
@@ -67,6 +68,19 @@ class PoseSeries:
     def count(self) -> int:
         return self.last - self.first + 1 if self.last >= self.first else 0
 
+    def lengths(self) -> dict[int, int]:
+        """Frames each track was reported in."""
+        return {k: int(np.isfinite(tp.joints[:, 0, 0]).sum()) for k, tp in self.tracks.items()}
+
+    def without_short(self, min_frames: int) -> tuple["PoseSeries", dict[int, int]]:
+        """The series without the tracks reported in fewer than ``min_frames`` frames (a
+        tracker's brief false starts: a shadow, two people merging and parting), and the
+        tracks left out with their lengths. The run's frame range stays."""
+        lengths = self.lengths()
+        short = {k: n for k, n in sorted(lengths.items()) if n < min_frames}
+        kept = {k: tp for k, tp in self.tracks.items() if k not in short}
+        return PoseSeries(self.fps, self.first, self.last, kept), short
+
     def select(self, track: int | None) -> "PoseSeries":
         if track is None:
             return self
@@ -74,6 +88,18 @@ class PoseSeries:
             known = ", ".join(map(str, sorted(self.tracks))) or "none"
             raise InputError(f"track {track} is not in the results (tracks: {known})")
         return PoseSeries(self.fps, self.first, self.last, {track: self.tracks[track]})
+
+
+def default_min_frames(fps: float) -> int:
+    """The shortest track exported by default: about one second of frames."""
+    return max(1, int(round(fps)))
+
+
+def short_tracks_line(short: dict[int, int], min_frames: int) -> str:
+    """The one line that says which tracks were left out as too short."""
+    which = ", ".join(f"{k} ({n} frame{'s' if n != 1 else ''})" for k, n in short.items())
+    return (f"left out {len(short)} track{'s' if len(short) != 1 else ''} of fewer than {min_frames} frames: "
+            f"{which}")
 
 
 def _check_record(rec, where: str) -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from app.drawing import outlined_text
 from app.messages import JOINTS
 
 __all__ = ["BONES", "draw_skeletons", "mosaic", "write_preview"]
@@ -63,9 +64,8 @@ def mosaic(images: list[np.ndarray], names: list[str], columns: int | None = Non
     for k, (img, name) in enumerate(zip(images, names)):
         r, c = divmod(k, columns)
         tile = np.zeros((h, w, 3), dtype=np.uint8)
-        tile[:img.shape[0]] = img
-        cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(tile, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+        tile[:img.shape[0], :img.shape[1]] = img
+        outlined_text(tile, name, (8, 22), 0.6, (255, 255, 255), 1, outline=2)
         out[r * h:(r + 1) * h, c * w:(c + 1) * w] = tile
     return out
 

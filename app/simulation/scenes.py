@@ -105,6 +105,16 @@ SCENES: dict[str, Scene] = {
         ),
         empty_room_shot=False,
     ),
+    "enter2": Scene(
+        "enter2", "the room empty at first; 2 people come in through the door one after the other, wave and "
+                  "raise their arms (short: the live viewer's test, exports of people who appear at different times)",
+        "meeting", 6.0,
+        (
+            PersonSpec((Walk((2.3, 2.5)), Turn(-PI / 2), Gesture("wave"), Stand(3.0)), start=(-0.5, 3.35, 0.0)),
+            PersonSpec((Stand(0.6), Walk((1.5, 1.5)), Turn(0.0), Gesture("raise_both"), Stand(3.0)),
+                       start=(-1.3, 3.35, 0.0)),
+        ),
+    ),
     "occluded1": Scene(
         "occluded1", "1 person walking along the aisle between two tables (legs hidden from most views)",
         "two_tables", 20.0,

@@ -1,6 +1,6 @@
 """Geometry of what the viewer draws, as plain numpy: the room box and floor grid,
-camera frustums, limb segments of a pose, voxel subsampling, colours and the default
-view. World coordinates are metres, z up (CONTRACT: floor at z = 0)."""
+camera frustums, limb segments of a pose and the solid skeleton built on them (bones and
+joints as small meshes), voxel subsampling, colours and the default view. World coordinates are metres, z up (CONTRACT: floor at z = 0)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,7 +11,7 @@ from app.messages import JOINTS
 
 __all__ = [
     "LIMBS", "LIMB_INDEX", "box_edges", "floor_grid", "frustum_corners", "frustum_segments",
-    "limb_segments", "subsample", "point_size", "rgb_floats", "track_colour", "ViewCamera",
+    "limb_segments", "skeleton_mesh", "subsample", "point_size", "rgb_floats", "track_colour", "ViewCamera",
     "default_view", "translation", "ellipsoid_rings",
 ]
 
@@ -111,6 +111,59 @@ def limb_segments(joints, active=None) -> tuple[np.ndarray, np.ndarray]:
         return segs, np.ones(len(LIMBS), dtype=bool)
     a = np.asarray(active, dtype=bool).reshape(len(JOINTS))
     return segs, a[LIMB_INDEX].all(axis=1)
+
+
+def _prism(a: np.ndarray, b: np.ndarray, radius: float, sides: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed-sided prism of ``sides`` faces around the segment a-b: vertices (2 sides, 3)
+    and triangles (2 sides, 3) indexing them."""
+    axis = b - a
+    length = np.linalg.norm(axis)
+    d = axis / length if length > 1e-9 else np.array([0.0, 0.0, 1.0])
+    ref = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(d, ref)
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    t = 2.0 * np.pi * np.arange(sides) / sides
+    ring = radius * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+    verts = np.concatenate([a + ring, b + ring])
+    k = np.arange(sides)
+    k1 = (k + 1) % sides
+    faces = np.concatenate([np.stack([k, k1, sides + k], 1), np.stack([k1, sides + k1, sides + k], 1)])
+    return verts, faces
+
+
+_OCTAHEDRON = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+_OCTAHEDRON_FACES = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+
+
+def skeleton_mesh(joints, active, colour, inactive_colour, bone_radius: float = 0.022,
+                  joint_radius: float = 0.035, sides: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pose as a solid skeleton: each limb of :data:`LIMBS` a bone (a thin prism)
+    between its joints, each joint a small octahedron. A limb the model lost (either joint
+    inactive) is grey and half as thick, an inactive joint grey: what was lost is seen as
+    lost. Lines would be one pixel wide whatever the distance (WebGL draws no thicker
+    lines), leaving only the joints visible. Returns vertices (V, 3), triangles (T, 3) and
+    per-vertex colours (V, 3) in [0, 1]."""
+    j = np.asarray(joints, dtype=np.float64).reshape(len(JOINTS), 3)
+    segs, limb_on = limb_segments(j, active)
+    joint_on = np.ones(len(JOINTS), bool) if active is None or np.size(active) != len(JOINTS) else \
+        np.asarray(active, bool).reshape(len(JOINTS))
+    colour = np.asarray(colour, float).reshape(3)
+    grey = np.asarray(inactive_colour, float).reshape(3)
+    verts, faces, cols = [], [], []
+    n = 0
+    for (a, b), on in zip(segs, limb_on):
+        v, f = _prism(a, b, bone_radius if on else 0.5 * bone_radius, sides)
+        verts.append(v)
+        faces.append(f + n)
+        cols.append(np.tile(colour if on else grey, (len(v), 1)))
+        n += len(v)
+    for p, on in zip(j, joint_on):
+        verts.append(p + joint_radius * _OCTAHEDRON)
+        faces.append(_OCTAHEDRON_FACES + n)
+        cols.append(np.tile(colour if on else grey, (len(_OCTAHEDRON), 1)))
+        n += len(_OCTAHEDRON)
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(cols)
 
 
 def subsample(n: int, max_points: int, surface=None) -> np.ndarray | None:

@@ -22,9 +22,8 @@ from app.errors import InputError
 from app.files import read_jsonl, read_yaml
 from app.messages import JOINTS
 from app.viewer import three
-from app.viewer.geometry import (ellipsoid_rings, limb_segments, point_size, rgb_floats, subsample, track_colour,
-                                 translation)
-from app.viewer.scene import CAMERA, FOV_DEG, INACTIVE_COLOUR, JOINT_PIXELS, LABEL_HEIGHT, ROOT, Scene
+from app.viewer.geometry import ellipsoid_rings, point_size, rgb_floats, subsample, track_colour, translation
+from app.viewer.scene import CAMERA, FOV_DEG, LABEL_HEIGHT, ROOT, Scene, skeleton_object
 
 __all__ = ["RunData", "load_run", "replay_commands", "frame_path", "REPLAY"]
 
@@ -189,7 +188,6 @@ def replay_commands(data: RunData, trail: int = 25, ellipsoid=(0.3, 0.3, 0.9), s
         return scene, cmds + scene.status(f"replay {data.folder.resolve().name} | nothing recorded")
     first, last = frames[0], frames[-1]
     fps = data.fps
-    grey = np.asarray(INACTIVE_COLOUR, np.float32)
     anim = []
     history: dict[int, list] = {}
     seen_tracks: dict[int, list] = {}
@@ -207,13 +205,7 @@ def replay_commands(data: RunData, trail: int = 25, ellipsoid=(0.3, 0.3, 0.9), s
         if f in data.poses:
             ids, joints, active = data.poses[f]
             for tid, jk, ak in zip(ids, joints, active):
-                segs, limb_on = limb_segments(jk, ak)
-                colour = track_colour(int(tid)).astype(np.float32)
-                cmds.append(three.set_object(f"{g}/poses/{int(tid)}/limbs", three.line_segments(
-                    segs, np.where(limb_on[:, None], colour, grey), on_top=True, render_order=5)))
-                cmds.append(three.set_object(f"{g}/poses/{int(tid)}/joints", three.points(
-                    jk, np.where(ak[:, None], colour, grey), size=JOINT_PIXELS, attenuate=False, on_top=True,
-                    render_order=6)))
+                cmds.append(three.set_object(f"{g}/poses/{int(tid)}", skeleton_object(jk, ak, int(tid))))
                 drawn = True
         if f in data.tracks:
             ids, positions = data.tracks[f]

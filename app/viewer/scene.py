@@ -4,8 +4,9 @@ command dicts out; the viewer worker sends them.
 
 Everything lives under :data:`ROOT`, translated so that the point the default view
 looks at is meshcat's origin: meshcat's orbit controls turn around the scene origin,
-so the room turns around its own centre. The scene remembers which tracks and poses
-it shows (to delete the ones that disappear) and each track's trail.
+so the room turns around its own centre. A frame's voxels, tracks and skeletons are one
+group (:data:`LIVE`) that the next frame replaces whole; the scene remembers each
+track's trail.
 """
 from __future__ import annotations
 
@@ -13,14 +14,15 @@ from collections import deque
 
 import numpy as np
 
+from app.messages import JOINTS
 from app.viewer import three
-from app.viewer.geometry import (box_edges, default_view, ellipsoid_rings, floor_grid, frustum_segments, limb_segments,
-                                 point_size, rgb_floats, subsample, track_colour, translation)
+from app.viewer.geometry import (box_edges, default_view, ellipsoid_rings, floor_grid, frustum_segments, point_size,
+                                 rgb_floats, skeleton_mesh, subsample, track_colour, translation)
 
-__all__ = ["Scene", "ROOT", "VOXELS", "STATUS", "BACKGROUND", "ROOM_COLOUR", "FRUSTUM_COLOUR", "INACTIVE_COLOUR"]
+__all__ = ["Scene", "skeleton_object", "ROOT", "LIVE", "STATUS", "BACKGROUND", "ROOM_COLOUR", "FRUSTUM_COLOUR", "INACTIVE_COLOUR"]
 
 ROOT = "/meshcat/smartroom"
-VOXELS = f"{ROOT}/voxels"       # the biggest object, replaced whole every frame
+LIVE = f"{ROOT}/live"           # the frame on show (voxels, tracks, skeletons): one group, replaced whole
 #: The status line (RTF) is a child of meshcat's camera: it stays at the top of the view.
 STATUS = "/Cameras/default/rotated/<object>/smartroom_status"
 CAMERA = "/Cameras/default/rotated/<object>"
@@ -33,7 +35,6 @@ ROOM_COLOUR = (0.62, 0.66, 0.72)
 FRUSTUM_COLOUR = (1.00, 1.00, 1.00)
 INACTIVE_COLOUR = (0.45, 0.45, 0.45)
 LABEL_HEIGHT = 0.045           # labels keep their size on screen: ~3 % of the view's height
-JOINT_PIXELS = 7.0
 
 
 class Scene:
@@ -61,6 +62,7 @@ class Scene:
         self.shown_tracks: set[int] = set()
         self.shown_poses: set[int] = set()
         self.trails: dict[int, deque] = {}
+        self._trail_frames: dict[int, int] = {}   # the frame each trail's newest point is of
         self.voxels_shown = 0
 
     @property
@@ -118,14 +120,42 @@ class Scene:
         return self.room()
 
     # -- every frame ------------------------------------------------------------------
-    def voxels(self, centres, colours=None, voxel_size: float = 0.02, surface=None) -> list[dict]:
+    def frame(self, frame: int, voxels=None, tracks=None, poses=None, epoch: int = 0) -> list[dict]:
+        """One frame on show: its voxels, tracks and skeletons as one group object at
+        :data:`LIVE`, which replaces the frame shown before in one step (the page never
+        shows parts of two frames). ``voxels``: ``(centres, colours, voxel_size, surface)``;
+        ``tracks``: ``(ids, positions)``; ``poses``: ``(tracks, joints, active)``; None:
+        the frame has no such part (nothing of it is drawn). The group's ``userData`` says
+        which frame it is and which parts it has."""
+        children, parts = [], []
+        if voxels is not None:
+            parts.append("voxels")
+            obj = self._voxels(*voxels)
+            if obj is not None:
+                children.append(obj)
+        else:
+            self.voxels_shown = 0
+        if tracks is not None:
+            parts.append("tracks")
+            children += self._tracks(frame, *tracks)
+        self.shown_tracks = set(int(i) for i in np.asarray(tracks[0]).reshape(-1)) if tracks is not None else set()
+        for tid in set(self.trails) - self.shown_tracks:   # a track that is gone loses its trail
+            del self.trails[tid]
+        if poses is not None:
+            parts.append("poses")
+            children += self._skeletons(*poses)
+        self.shown_poses = set(int(t) for t in np.asarray(poses[0]).reshape(-1)) if poses is not None else set()
+        info = {"frame": int(frame), "epoch": int(epoch), "parts": parts}
+        return [three.set_object(LIVE, three.group(children, "frame", user_data=info))]
+
+    def _voxels(self, centres, colours=None, voxel_size: float = 0.02, surface=None) -> dict | None:
         """The occupied voxels as points in their own colours (neutral when uncoloured),
         at most ``max_points`` of them (surface first)."""
         centres = np.asarray(centres, float).reshape(-1, 3)
         n = len(centres)
         if n == 0:
             self.voxels_shown = 0
-            return [three.delete(VOXELS)]
+            return None
         cols = np.asarray(colours) if colours is not None else None
         if cols is None or cols.shape != (n, 3):
             cols = (rgb_floats(None, n) * 255).round().astype(np.uint8)
@@ -134,70 +164,57 @@ class Scene:
             centres, cols = centres[keep], cols[keep]
         self.voxels_shown = len(centres)
         size = point_size(voxel_size, n, len(centres))
-        return [three.set_object(VOXELS, three.points(centres, cols, size=size))]
+        return three.named(three.points(centres, cols, size=size, user_data={"total": n}), "voxels")
 
-    def tracks(self, ids, positions) -> list[dict]:
-        """One ellipsoid and id label per track, moved to its centroid, with its trail;
-        tracks that are gone are removed."""
+    def _tracks(self, frame: int, ids, positions) -> list[dict]:
+        """Per track an ellipsoid with its id label at its centroid, and its trail."""
         ids = [int(i) for i in np.asarray(ids).reshape(-1)]
         positions = np.asarray(positions, float).reshape(-1, 3)
-        cmds = []
+        out = []
         for tid, p in zip(ids, positions):
-            path = f"{ROOT}/tracks/{tid}"
             colour = track_colour(tid)
-            if tid not in self.shown_tracks:
-                cmds.append(three.set_object(f"{path}/body", three.line_segments(
-                    self._rings, colour=colour, opacity=0.85)))
-                png, aspect = three.text_image(f"#{tid}", colour)
-                cmds.append(three.set_object(f"{path}/label", three.sprite(
-                    png, LABEL_HEIGHT * 1.2, aspect, [0.0, 0.0, self.semi_axes[2] + 0.15])))
-            cmds.append(three.set_transform(path, translation(p)))
+            body = three.line_segments(self._rings, colour=colour, opacity=0.85)
+            png, aspect = three.text_image(f"#{tid}", colour)
+            label = three.sprite(png, LABEL_HEIGHT * 1.2, aspect, [0.0, 0.0, self.semi_axes[2] + 0.15])
+            out.append(three.group([three.named(body, "body"), three.named(label, "label")], f"track {tid}",
+                                   matrix=translation(p), user_data={"track": tid}))
             if self.trail:
                 trail = self.trails.setdefault(tid, deque(maxlen=self.trail))
-                trail.append(p.copy())
+                if self._trail_frames.get(tid) != frame:   # a frame drawn again adds nothing
+                    trail.append(p.copy())
+                    self._trail_frames[tid] = frame
                 if len(trail) >= 2:
-                    cmds.append(three.set_object(f"{ROOT}/trails/{tid}", three.line_strip(np.array(trail), colour)))
-        gone = self.shown_tracks - set(ids)
-        for tid in sorted(gone):
-            cmds += [three.delete(f"{ROOT}/tracks/{tid}"), three.delete(f"{ROOT}/trails/{tid}")]
-            self.trails.pop(tid, None)
-        self.shown_tracks = set(ids)
-        return cmds
+                    out.append(three.named(three.line_strip(np.array(trail), colour), f"trail {tid}"))
+        return out
 
-    def poses(self, tracks, joints, active=None) -> list[dict]:
-        """One skeleton per pose, limbs as segments in the track's colour (grey where a
-        joint is inactive) and joints as dots, drawn over the voxels; poses that are gone
-        are removed."""
+    def _skeletons(self, tracks, joints, active=None) -> list[dict]:
+        """One solid skeleton per pose (:func:`skeleton_mesh`: bones and joints in the
+        track's colour, what the model lost grey and thinner), drawn over the voxels."""
         tracks = [int(t) for t in np.asarray(tracks).reshape(-1)]
-        joints = np.asarray(joints, float).reshape(len(tracks), -1, 3) if tracks else np.zeros((0, 15, 3))
-        act = None if active is None or np.size(active) != len(tracks) * joints.shape[1] else \
-            np.asarray(active, bool).reshape(len(tracks), -1)
-        cmds = []
-        grey = np.asarray(INACTIVE_COLOUR, np.float32)
-        for k, tid in enumerate(tracks):
-            a = act[k] if act is not None else np.ones(joints.shape[1], bool)
-            segs, limb_on = limb_segments(joints[k], a)
-            colour = track_colour(tid).astype(np.float32)
-            seg_cols = np.where(limb_on[:, None], colour, grey)
-            joint_cols = np.where(a[:, None], colour, grey)
-            path = f"{ROOT}/poses/{tid}"
-            cmds.append(three.set_object(f"{path}/limbs", three.line_segments(segs, seg_cols, on_top=True,
-                                                                             render_order=5)))
-            cmds.append(three.set_object(f"{path}/joints", three.points(
-                joints[k], joint_cols, size=JOINT_PIXELS, attenuate=False, on_top=True, render_order=6)))
-        for tid in sorted(set(self.shown_poses) - set(tracks)):
-            cmds.append(three.delete(f"{ROOT}/poses/{tid}"))
-        self.shown_poses = set(tracks)
-        return cmds
+        # a frame without people (every run's first) has no poses: (0, 15, 3) and (0, 15)
+        joints = np.asarray(joints, float).reshape(len(tracks), len(JOINTS), 3)
+        act = None if active is None or np.size(active) != joints.shape[0] * joints.shape[1] else \
+            np.asarray(active, bool).reshape(joints.shape[:2])
+        return [skeleton_object(joints[k], act[k] if act is not None else None, tid) for k, tid in enumerate(tracks)]
 
-    def status(self, text: str, colour=(1.0, 1.0, 1.0)) -> list[dict]:
-        """A line of text at the top of the view (the camera's child, one metre ahead)."""
+    def status(self, text: str, colour=(1.0, 1.0, 1.0), info: dict | None = None) -> list[dict]:
+        """A line of text at the top of the view (the camera's child, one metre ahead);
+        ``info``: what it says as data (``userData`` on the page)."""
         png, aspect = three.text_image(text, colour)
         height = 0.055
         top = np.tan(np.radians(FOV_DEG) / 2.0)
         return [three.set_object(STATUS, three.sprite(png, height, aspect, [0.0, top - height, -1.0], 20,
-                                                      attenuate=True))]
+                                                      attenuate=True, user_data={"text": text, **(info or {})}))]
 
 
 def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(name)) or "camera"
+
+
+def skeleton_object(joints, active, track: int, name: str | None = None) -> dict:
+    """One person's skeleton (:func:`app.viewer.geometry.skeleton_mesh`) in the track's
+    colour, drawn over everything (seen through the voxels around it)."""
+    verts, faces, cols = skeleton_mesh(joints, active, track_colour(track), INACTIVE_COLOUR)
+    obj = three.triangles(verts, faces, colours=cols.astype(np.float32), on_top=True, render_order=5,
+                          user_data={"track": int(track)})
+    return three.named(obj, name or f"skeleton {int(track)}")

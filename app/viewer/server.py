@@ -13,8 +13,12 @@ runs on a daemon thread of the viewer itself:
   is open at all;
 - it ends with the process, whatever ends the process: nothing to orphan;
 - a browser that cannot keep up (a slow link) gets only the newest version of the
-  big, self-replacing objects (``latest_only`` paths: the voxels) instead of a queue
-  that grows in this process's memory.
+  big, self-replacing objects (``latest_only`` paths: the frame on show) instead of a
+  queue that grows in this process's memory;
+- the page (meshcat's, served from here with :data:`FOLLOW_SCRIPT` added) follows its
+  server: when the websocket closes (a viewer that crashed and is being restarted, the
+  end of a run that ``--linger`` replays at the same address) it waits until the page is
+  served again and reloads, so a page opened once shows the run to its end.
 
 Commands are meshcat's: ``{"type": "set_object" | "set_transform" | "delete" |
 "set_property", "path": "/meshcat/...", ...}`` dicts (see :mod:`app.viewer.three`),
@@ -25,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+import os
 import socket
 import threading
 import warnings
@@ -39,12 +44,13 @@ with warnings.catch_warnings():   # meshcat 0.3 imports pyzmq's deprecated zmq.e
     from meshcat.servers.zmqserver import (DEFAULT_FILESERVER_PORT, VIEWER_HTML, VIEWER_ROOT,
                                            StaticFileHandlerNoCache, ZMQWebSocketBridge)
 
-__all__ = ["MeshcatServer", "ServerError", "page_url", "LatestWins"]
+__all__ = ["MeshcatServer", "ServerError", "page_url", "page_html", "LatestWins", "FOLLOW_SCRIPT"]
 
 log = logging.getLogger("smartroom.viewer.server")
 
 _COUNTER = itertools.count()
 PORT_ATTEMPTS = 100
+CLOSE_GRACE_S = 1.0   # at the end, how long the browsers' websockets may take to close
 
 
 class ServerError(RuntimeError):
@@ -59,6 +65,40 @@ def page_url(bind: str, port: int) -> str:
     elif ":" in bind:
         host = f"[{bind}]"
     return f"http://{host}:{port}/static/"
+
+
+#: Added to meshcat's page: once the websocket has closed, fetch the page until it is
+#: served again, then reload (the restarted viewer, or the replay, sends its whole scene).
+FOLLOW_SCRIPT = """<script>
+(function () {
+    const again = () => fetch(location.href, {cache: "no-store"})
+        .then((r) => { if (r.ok) { location.reload(); } else { setTimeout(again, 500); } })
+        .catch(() => setTimeout(again, 500));
+    if (typeof viewer !== "undefined" && viewer.connection) {
+        viewer.connection.onclose = () => setTimeout(again, 500);
+    }
+})();
+</script>
+"""
+
+
+def page_html() -> str:
+    """meshcat's page with :data:`FOLLOW_SCRIPT` after its own script."""
+    with open(os.path.join(VIEWER_ROOT, VIEWER_HTML), encoding="utf-8") as fh:
+        html = fh.read()
+    return html.replace("</body>", FOLLOW_SCRIPT + "</body>", 1)
+
+
+class _Page(tornado.web.RequestHandler):
+    """The page itself (``/static/`` and ``/static/index.html``), never cached."""
+
+    def initialize(self, html: str):
+        self.html = html
+
+    def get(self, *_):
+        self.set_header("Cache-Control", "no-store")
+        self.set_header("Content-Type", "text/html; charset=utf-8")
+        self.write(self.html)
 
 
 class LatestWins:
@@ -141,7 +181,8 @@ class _Bridge(ZMQWebSocketBridge):
             raise
 
     def make_app(self):
-        app = tornado.web.Application([   # meshcat's routes; requests are not logged
+        app = tornado.web.Application([   # meshcat's routes (the page with ours); requests are not logged
+            (r"/static/((?:index\.html)?)", _Page, {"html": page_html()}),
             (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
             (r"/", _Client, {"bridge": self}),
         ], log_function=lambda handler: None)
@@ -206,6 +247,9 @@ class MeshcatServer:
             return _Bridge(self.bind, self.requested_port, self._zmq_url, self.latest_only)
         last = None
         for port in range(DEFAULT_FILESERVER_PORT, DEFAULT_FILESERVER_PORT + PORT_ATTEMPTS):
+            # each try its own command socket address: the one of a failed try (its port
+            # taken, e.g. by another viewer) is not free again at once ("Address already in use")
+            self._zmq_url = f"inproc://smartroom-viewer-{next(_COUNTER)}"
             try:
                 return _Bridge(self.bind, port, self._zmq_url, self.latest_only)
             except OSError as exc:
@@ -276,10 +320,27 @@ class MeshcatServer:
             raise ServerError(f"the meshcat server refused {command['type']} {command.get('path')}: {reply!r}")
 
     def close(self) -> None:
-        """Stop serving (the page keeps showing the last scene) and end the thread."""
+        """Stop serving (the page keeps showing the last scene) and end the thread. The
+        browsers get what was sent before, then the websocket's close (their pages then
+        wait for the page to be served again)."""
         if self._socket is not None:
             self._socket.close(linger=0)
             self._socket = None
         if self._loop is not None and self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._loop.call_soon_threadsafe(self._say_goodbye)
             self._thread.join(5.0)
+
+    def _say_goodbye(self) -> None:
+        """On the server's loop: a close frame to every browser, queued after the commands
+        still on their way, and the loop's end once they have left (or after a second)."""
+        clients = list(self._bridge.websocket_pool) if self._bridge is not None else []
+        for client in clients:
+            client.close()
+        deadline = self._loop.time() + CLOSE_GRACE_S
+
+        def stop_when_gone():
+            if self._bridge.websocket_pool and self._loop.time() < deadline:
+                self._loop.call_later(0.02, stop_when_gone)
+            else:
+                self._loop.stop()
+        stop_when_gone()

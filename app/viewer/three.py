@@ -20,7 +20,7 @@ import umsgpack
 
 __all__ = [
     "set_object", "set_transform", "set_property", "delete", "set_animation", "track", "set_control",
-    "points", "line_segments", "line_strip", "triangles", "sprite", "text_image", "hex_colour",
+    "points", "line_segments", "line_strip", "triangles", "group", "named", "sprite", "text_image", "hex_colour",
 ]
 
 _EXT = {np.dtype(np.uint8): ("Uint8Array", 0x12), np.dtype(np.uint32): ("Uint32Array", 0x16),
@@ -127,8 +127,10 @@ def _material(kind: str, colour=(1.0, 1.0, 1.0), opacity: float = 1.0, on_top: b
 
 
 def _object(kind: str, geometry: dict | None, material: dict, matrix=None, render_order: int = 0,
-            extra: dict | None = None) -> dict:
+            extra: dict | None = None, user_data: dict | None = None) -> dict:
     obj = {"uuid": _uuid(), "type": kind, "material": material["uuid"]}
+    if user_data:
+        obj["userData"] = dict(user_data)   # three.js keeps it on the object: the page can say what it shows
     if geometry is not None:
         obj["geometry"] = geometry["uuid"]
     if matrix is not None:
@@ -146,12 +148,13 @@ def _object(kind: str, geometry: dict | None, material: dict, matrix=None, rende
 # -- objects ---------------------------------------------------------------------------
 
 def points(positions, colours=None, size: float = 0.02, colour=(1.0, 1.0, 1.0), attenuate: bool = True,
-           on_top: bool = False, render_order: int = 0) -> dict:
+           on_top: bool = False, render_order: int = 0, user_data: dict | None = None) -> dict:
     """A point cloud. ``colours`` (N, 3) uint8 or float per point, else one ``colour``;
-    ``size`` in metres (``attenuate``) or in pixels."""
+    ``size`` in metres (``attenuate``) or in pixels; ``user_data``: facts the page keeps
+    with the object (the frame it belongs to)."""
     mat = _material("PointsMaterial", colour if colours is None else (1.0, 1.0, 1.0), on_top=on_top,
                     size=float(size), sizeAttenuation=bool(attenuate), vertexColors=colours is not None)
-    return _object("Points", _geometry(positions, colours), mat, render_order=render_order)
+    return _object("Points", _geometry(positions, colours), mat, render_order=render_order, user_data=user_data)
 
 
 def line_segments(segments, colours=None, colour=(1.0, 1.0, 1.0), opacity: float = 1.0, on_top: bool = False,
@@ -172,14 +175,46 @@ def line_strip(positions, colour=(1.0, 1.0, 1.0), opacity: float = 1.0) -> dict:
     return _object("Line", _geometry(positions), _material("LineBasicMaterial", colour, opacity))
 
 
-def triangles(vertices, faces, colour=(1.0, 1.0, 1.0), opacity: float = 1.0) -> dict:
-    """An unlit triangle mesh (a floor)."""
-    return _object("Mesh", _geometry(vertices, index=faces),
-                   _material("MeshBasicMaterial", colour, opacity, depthWrite=opacity >= 1.0))
+def triangles(vertices, faces, colour=(1.0, 1.0, 1.0), opacity: float = 1.0, colours=None, on_top: bool = False,
+              render_order: int = 0, user_data: dict | None = None) -> dict:
+    """An unlit triangle mesh (a floor, a skeleton): one ``colour``, or ``colours`` per
+    vertex (V, 3)."""
+    mat = _material("MeshBasicMaterial", colour if colours is None else (1.0, 1.0, 1.0), opacity, on_top,
+                    vertexColors=colours is not None)
+    if not on_top:
+        mat["depthWrite"] = opacity >= 1.0
+    return _object("Mesh", _geometry(vertices, colours, index=faces), mat, render_order=render_order,
+                   user_data=user_data)
+
+
+def group(children: list[dict], name: str = "", matrix=None, user_data: dict | None = None) -> dict:
+    """Objects (each built by the functions here) as the children of one group: one
+    ``set_object`` puts all of them on the page at once (and the next replaces them at
+    once). A child's ``name`` is set with :func:`named`."""
+    obj = {"uuid": _uuid(), "type": "Group", "children": []}
+    if name:
+        obj["name"] = name
+    if matrix is not None:
+        obj["matrix"] = [float(v) for v in np.asarray(matrix, dtype=np.float64).reshape(4, 4).T.ravel()]
+    if user_data:
+        obj["userData"] = dict(user_data)
+    data = {"metadata": {"version": 4.5, "type": "Object"}, "geometries": [], "materials": [], "object": obj}
+    for child in children:
+        for part in ("geometries", "materials", "textures", "images"):
+            if child.get(part):
+                data.setdefault(part, []).extend(child[part])
+        obj["children"].append(child["object"])
+    return data
+
+
+def named(obj: dict, name: str) -> dict:
+    """``obj`` (a built object) with a name: the page finds it by that name."""
+    obj["object"]["name"] = name
+    return obj
 
 
 def sprite(png: bytes, height: float, aspect: float, position=(0.0, 0.0, 0.0), render_order: int = 10,
-           attenuate: bool = False, mime: str = "image/png") -> dict:
+           attenuate: bool = False, mime: str = "image/png", user_data: dict | None = None) -> dict:
     """A label: a PNG on a sprite (it always faces the viewer) drawn over everything,
     centred at ``position`` in its node's frame (``mime``: another image type, e.g. a
     camera's JPEG). ``height``: metres when ``attenuate``,
@@ -193,25 +228,26 @@ def sprite(png: bytes, height: float, aspect: float, position=(0.0, 0.0, 0.0), r
     m = np.diag([height * aspect, height, 1.0, 1.0])
     m[:3, 3] = np.asarray(position, dtype=np.float64).reshape(3)
     return _object("Sprite", None, mat, matrix=m, render_order=render_order,
-                   extra={"textures": [texture], "images": [image]})
+                   extra={"textures": [texture], "images": [image]}, user_data=user_data)
 
 
 def text_image(text: str, colour=(1.0, 1.0, 1.0), scale: float = 1.0,
                outline=(0.05, 0.05, 0.05)) -> tuple[bytes, float]:
     """``text`` rendered as a PNG (transparent background, outlined letters) and its
     width/height ratio."""
+    from app.drawing import outlined_text
     font, thick = cv2.FONT_HERSHEY_DUPLEX, max(1, int(round(2 * scale)))
     fs = 1.2 * scale
     (w, h), base = cv2.getTextSize(text, font, fs, thick)
-    pad = 3 * thick + 2
+    ring = thick + 1
+    pad = ring + thick + 2
     img = np.zeros((h + base + 2 * pad, w + 2 * pad, 4), np.uint8)
-    org = (pad, pad + h)
 
-    def bgra(rgb):
-        return (int(rgb[2] * 255), int(rgb[1] * 255), int(rgb[0] * 255), 255)
+    def bgr(rgb):
+        return (int(rgb[2] * 255), int(rgb[1] * 255), int(rgb[0] * 255))
 
-    cv2.putText(img, text, org, font, fs, bgra(outline), thick + 3 * max(1, thick // 2) + 2, cv2.LINE_AA)
-    cv2.putText(img, text, org, font, fs, bgra(colour), thick, cv2.LINE_AA)
+    outlined_text(img, text, (pad, pad + h), fs, bgr(colour), thick, outline=ring, outline_colour=bgr(outline),
+                  font=font)
     ok, buf = cv2.imencode(".png", img)
     if not ok:  # pragma: no cover - OpenCV always encodes a small BGRA image
         raise ValueError("cannot encode the label image")
