@@ -382,7 +382,7 @@ class Launcher:
         fps = self.layout.run.fps or 0.0
         source = next((self.eos[p.name] for p in self.procs if p.source and p.name in self.eos), None)
         expected = source.frames if source is not None else None
-        out = summarise(stages, fps, expected, started=self.started)
+        out = summarise(stages, fps, expected, started=self.started, paced=bool(self.layout.run.pace))
         restarts = {p.name: p.restarts for p in self.procs}
         for name, s in out["stages"].items():
             s["restarts"] = restarts.get(name, s.get("restarts", 0))

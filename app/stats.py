@@ -283,7 +283,8 @@ def steady_fps(f: dict, compile_spans) -> float:
     return round((n - 1) / span, 3) if span > 0 else float(f.get("fps", 0.0) or 0.0)
 
 
-def summarise(stages: dict, recording_fps: float, frames: int | None = None, started: float | None = None) -> dict:
+def summarise(stages: dict, recording_fps: float, frames: int | None = None, started: float | None = None,
+              paced: bool = False) -> dict:
     """The pipeline summary of ``stats.json`` from each worker's last figures.
 
     ``stages`` maps worker name to ``{"stage", "order", "figures"}``. A stage's
@@ -296,7 +297,10 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None, sta
     start-up is reported apart (``startup``): from ``started`` (the run's start, wall
     clock) to the first frame delivered, each worker's set-up (tables, background models)
     and the kernels' compile time; ``rtf_with_startup`` is the frames delivered over the
-    whole run's time, start-up included.
+    whole run's time, start-up included. ``paced``: the source sent frames at the
+    recording's rate (live cameras, a paced recording): a source held during a compile
+    catches up afterwards, so the span less the compile can be shorter than the frames'
+    own time; the RTF of a paced run is at most 1 then.
     """
     compile_spans = [span for s in stages.values() for span in (s["figures"].get("compile_spans") or [])
                      if isinstance(span, list) and len(span) == 2]
@@ -339,7 +343,8 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None, sta
             # frames delivered at the end of the pipeline, over the frames the source sent
             "frames_delivered": delivered,
             "delivered_ratio": round(delivered / frames, 4) if frames else None,
-            "rtf": round(fps / recording_fps, 4) if recording_fps else None,
+            "rtf": (round(min(fps / recording_fps, 1.0) if paced else fps / recording_fps, 4)
+                    if recording_fps else None),
             "end_to_end_latency_ms": last.get("latency_ms", {}),
         })
         first, end = last.get("first_emit"), last.get("last_emit")

@@ -115,6 +115,19 @@ SCENES: dict[str, Scene] = {
                        start=(-1.3, 3.35, 0.0)),
         ),
     ),
+    "statures3": Scene(
+        "statures3", "3 people of 1.50, 1.95 and 1.62 m: the shortest gestures in place and never walks, the "
+                     "tallest walks along the wall and crouches, the third walks to the table and sits down "
+                     "(issue 22's people the fixed thresholds missed)",
+        "meeting", 10.0,
+        (
+            PersonSpec((Gesture("wave"), Gesture("raise_both"), Gesture("explain"), Gesture("point")),
+                       start=(3.75, 1.0, PI), repeat=True, height=1.50),
+            PersonSpec((Walk((0.9, 3.0)), Turn(0.0), Gesture("crouch"), Walk((0.9, 1.0)), Stand(1.0)),
+                       start=(0.9, 0.8, PI / 2), repeat=True, height=1.95),
+            PersonSpec((Sit(4, 12.0),), start=(4.6, 3.2, PI), height=1.62),
+        ),
+    ),
     "occluded1": Scene(
         "occluded1", "1 person walking along the aisle between two tables (legs hidden from most views)",
         "two_tables", 20.0,
