@@ -309,7 +309,7 @@ def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01)
     gx, gy = np.meshgrid(xs, ys)
     pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
     uv = camera.project(pts) / scale
-    ok = np.isfinite(uv).all(axis=1)
+    ok = (np.abs(uv) < 1e6).all(axis=1)   # finite and near the image (far off it, a wide lens's distortion explodes)
     u, v = np.floor(uv[ok, 0]).astype(np.int64), np.floor(uv[ok, 1]).astype(np.int64)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     out = np.zeros((h, w), dtype=np.uint8)
