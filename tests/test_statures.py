@@ -1,0 +1,52 @@
+"""People of every stature, still, gesturing in place and seated (issue 22), through the
+real worker processes over zenoh: the statures3 scene (1.50 m gesturing in place, 1.95 m
+walking and crouching, 1.62 m sitting down), scored against its ground truth with the
+accuracy benchmark's scoring (app.benchmarks.accuracy.score_scene)."""
+import json
+
+import pytest
+
+from app.benchmarks.accuracy import score_scene
+from tests.conftest import simulated, smartroom
+
+pytestmark = pytest.mark.integration
+
+SECONDS = 8
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory):
+    rec = simulated(tmp_path_factory, "statures3", SECONDS)
+    out = tmp_path_factory.mktemp("statures") / "out"
+    r = smartroom("run", "--recording", rec, "--headless", "--no-pace", "--out", out, timeout=400)
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "stats.json").read_text())["complete"]
+    return score_scene(rec, out)
+
+
+def test_every_stature_is_tracked_and_nobody_is_untracked_for_a_second(scored):
+    assert scored["statures"] == {"1": 1.5, "2": 1.95, "3": 1.62}
+    assert all(s <= 1.0 for s in scored["untracked_s"].values()), scored["untracked_s"]
+    t = scored["tracking"]
+    assert t["misses"] <= 0.03 * t["truths"] and t["mismatches"] <= 1, t
+    assert t["mota"] >= 0.85 and t["idf1"] >= 0.85 and t["motp_mm"] <= 60, t   # the phantom's frames: below
+    for band, (hit, frames) in scored["detection_by_stature"].items():
+        assert frames == 0 or hit / frames >= 0.95, (band, hit, frames)
+
+
+def test_a_person_gesturing_in_place_and_a_seated_person_are_found(scored):
+    act = scored["detection_by_activity"]
+    for what in ("gesturing", "sitting"):
+        hit, frames = act[what]
+        assert frames > 25 and hit / frames >= 0.9, (what, act)
+
+
+def test_every_person_is_posed(scored):
+    p = scored["pose"]
+    assert p["frames_scored"] >= 190 and p["mmta"] >= 0.6 and p["mpjpe_mm"] <= 110, p
+
+
+@pytest.mark.xfail(strict=True, reason="issue 22, open: where the silhouette cones of the 1.50 m and the 1.62 m "
+                                       "person cross above the table a blob holds a track for ~60 frames")
+def test_no_phantom_is_tracked_or_posed(scored):
+    assert scored["phantom_poses"] == 0 and not scored["phantom_tracks"], scored
