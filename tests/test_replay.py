@@ -142,7 +142,7 @@ def _stop(proc):
             proc.wait()
 
 
-def _chromium_run(chromium, url, profile, args, tries=3, timeout=40):
+def _chromium_run(chromium, url, profile, args, tries=3, timeout=60):
     """Headless Chromium (software WebGL, as in the viewer test) on ``url``; stdout. Tried
     again with a fresh profile when Chromium stalls, seen now and then on a loaded machine
     (with other Chromium instances running) whatever the page."""

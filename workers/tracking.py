@@ -38,6 +38,8 @@ class Tracking(Worker):
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
         "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
         "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
+        "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
+                                   # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
@@ -63,7 +65,13 @@ class Tracking(Worker):
         warm_up()
         self.tracker_params = params
         self.classifier = tree
-        self.tracker = MultiTracker(params, tree)
+        self.ghost_test = None
+        if self.params["ghosts"]:
+            from app.tracking.ghosts import GhostTest
+
+            calibration = self.run_calibration()
+            self.ghost_test = GhostTest(calibration.cameras) if calibration is not None else None
+        self.tracker = MultiTracker(params, tree, self.ghost_test)
         self.occupancy = None
         self.grid_key = None
         self.counts: list[int] = []
@@ -89,6 +97,7 @@ class Tracking(Worker):
         (arrays, mine), dims = earlier, [int(d) for d in msg.dims]
         try:
             self.tracker = restore_tracker(self.tracker_params, self.classifier, arrays, dims)
+            self.tracker.ghost_test = self.ghost_test
         except SnapshotError as exc:
             self.log.warning("%s: the tracker starts afresh", exc)
             return
@@ -158,4 +167,5 @@ class Tracking(Worker):
     def extra_figures(self) -> dict:
         c = getattr(self, "counts", [])
         return {"tracks": int(c[-1]) if c else 0,
-                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0}
+                "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0,
+                "ghost_sightings": int(self.tracker.ghosts) if hasattr(self, "tracker") else 0}

@@ -134,10 +134,15 @@ class MultiTracker:
     :class:`~app.tracking.classifier.DecisionTree` used on unclaimed voxels (None: the
     components' own verdicts only)."""
 
-    def __init__(self, params: TrackerParams | None = None, classifier=None):
+    def __init__(self, params: TrackerParams | None = None, classifier=None, ghost_test=None):
         self.p = params or TrackerParams()
         self.cls, self.colour = FILTERS[self.p.filter]
         self.classifier = classifier
+        #: beyond the thesis: ``(centres of a candidate's voxels, centres of the tracked
+        #: people's) -> bool``, True for a ghost where tracked people's silhouette cones cross
+        #: (:class:`~app.tracking.ghosts.GhostTest`); None: no such test (the thesis)
+        self.ghost_test = ghost_test
+        self.ghosts = 0   # candidate sightings the ghost test turned away
         self.rng = np.random.default_rng(self.p.seed)
         self.tracks: list[_Track] = []
         self.candidates: list[tuple[np.ndarray, int, int]] = []   # (centre, sightings, sure sightings)
@@ -367,6 +372,8 @@ class MultiTracker:
                 centre = self._candidate_centre(scene, c)
                 if len(targets_xy) and (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance ** 2).any():
                     continue
+                if self._ghost(scene, np.nonzero(scene.labels == c)[0], hosts):
+                    continue
                 # sure only while the room has no track (the first person in): phantoms of
                 # the hull come with people, and crowd6's are "sure" persons too
                 found.append((centre, not len(targets_xy) and self._sure(scene.features[c:c + 1])))
@@ -388,6 +395,8 @@ class MultiTracker:
                 if len(targets_xy) and \
                         (((targets_xy - centre[:2]) ** 2).sum(axis=1) < p.new_distance_merged ** 2).any():
                     continue
+                if self._ghost(scene, columns.run_positions(scene.run_start, mine), hosts):
+                    continue
                 found.append((centre, False))   # a piece of a tracked blob is never sure
         # confirmation: a candidate seen again near where it was the frame before
         nxt = []
@@ -408,6 +417,18 @@ class MultiTracker:
             else:
                 nxt.append((c, count, sure_count))
         self.candidates = nxt
+
+    def _ghost(self, scene: SceneFrame, mine: np.ndarray, hosts: set) -> bool:
+        """The ghost test of the voxels at list positions ``mine`` against those of the
+        components the tracks hold (the people known: whom a ghost is made of)."""
+        if self.ghost_test is None or not hosts:
+            return False
+        others = np.isin(scene.labels, np.fromiter(hosts, dtype=np.int64, count=len(hosts)))
+        others[mine] = False
+        if self.ghost_test(scene.centres_at(mine), scene.centres_at(np.nonzero(others)[0])):
+            self.ghosts += 1
+            return True
+        return False
 
     def _component_centre(self, scene: SceneFrame, c: int) -> np.ndarray:
         """Mean voxel centre of component ``c`` (all of the frame's component centres

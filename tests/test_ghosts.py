@@ -1,0 +1,81 @@
+"""The ghost test of new tracks (app/tracking/ghosts.py): a visual hull carved from the
+silhouettes of two people in two and in three cameras holds, besides the two bodies,
+blobs where one person's viewing cone crosses the other's; judged against the people
+known (as the tracker asks), those are ghosts and each person is not."""
+import cv2
+import numpy as np
+import pytest
+
+from app.tracking.blobs import ComponentAnalysis
+from app.tracking.ghosts import GhostTest
+from calibration.camera import Camera
+
+VOXEL = 0.05
+ROOM = (5.0, 5.0, 2.0)
+PEOPLE = ((1.5, 2.5), (3.5, 2.5))   # xy of two 1.7 m tall, 0.5 m wide columns
+
+
+def _body_points(xy, step=0.02):
+    r = np.arange(-0.25, 0.25 + 1e-9, step)
+    gx, gy, gz = np.meshgrid(r, r, np.arange(0.0, 1.7, step), indexing="ij")
+    keep = gx ** 2 + gy ** 2 <= 0.25 ** 2
+    return np.stack([gx[keep] + xy[0], gy[keep] + xy[1], gz[keep]], axis=1)
+
+
+def _hull(cameras):
+    """Voxel centres inside every camera's silhouette of the two people, and their labels."""
+    dims = tuple(int(round(d / VOXEL)) for d in ROOM)
+    idx = np.stack(np.meshgrid(*[np.arange(d) for d in dims], indexing="ij"), axis=-1).reshape(-1, 3)
+    centres = (idx + 0.5) * VOXEL
+    keep = np.ones(len(idx), dtype=bool)
+    body = np.concatenate([_body_points(p) for p in PEOPLE])
+    for cam in cameras:
+        mask = np.zeros((cam.height, cam.width), np.uint8)
+        uv = np.round(cam.project(body)).astype(int)
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        mask[uv[ok, 1], uv[ok, 0]] = 1
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+        uv = cam.project(centres)
+        inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width - 0.5) & \
+            (uv[:, 1] >= 0) & (uv[:, 1] < cam.height - 0.5)
+        hit = np.zeros(len(idx), dtype=bool)
+        uvi = np.round(uv[inside]).astype(int)
+        hit[np.nonzero(inside)[0]] = mask[uvi[:, 1], uvi[:, 0]] > 0
+        keep &= hit
+    idx = idx[keep].astype(np.int64)
+    labels, feats, _ = ComponentAnalysis(dims, (0.0, 0.0, 0.0), VOXEL)(idx)
+    return (idx + 0.5) * VOXEL, labels, feats
+
+
+def _cameras(n):
+    spots = [(-0.5, -0.5, 2.5), (5.5, -0.5, 2.5), (2.5, 5.8, 2.5)][:n]
+    return [Camera.look_at(f"c{k}", p, (2.5, 2.5, 0.9), 320, 240, hfov_deg=80.0) for k, p in enumerate(spots)]
+
+
+@pytest.mark.parametrize("n_cameras", [2, 3])
+def test_ghosts_where_cones_cross_and_people_not(n_cameras):
+    cameras = _cameras(n_cameras)
+    centres, labels, feats = _hull(cameras)
+    test = GhostTest(cameras)
+    comps = [c for c in range(len(feats)) if (labels == c).sum() >= 20]
+    near = {c: min(np.hypot(*(centres[labels == c, :2].mean(axis=0) - np.asarray(p))) for p in PEOPLE)
+            for c in comps}
+    body = [c for c in comps if near[c] < 0.2]
+    assert len(body) == 2
+    # each person against the other (the one known): not a ghost
+    people = [test(centres[labels == a], centres[labels == b]) for a, b in (body, body[::-1])]
+    assert people == [False, False]
+    # every other blob against the two people: a ghost
+    known = np.isin(labels, body)
+    ghosts = [test(centres[labels == c], centres[known]) for c in comps if c not in body]
+    if n_cameras == 2:
+        assert len(ghosts) >= 1        # two cameras, two people: their cones cross
+    assert all(ghosts), ghosts
+
+
+def test_a_person_alone_or_unseen_is_never_a_ghost():
+    cameras = _cameras(3)
+    body = _body_points(PEOPLE[0], step=0.05)
+    test = GhostTest(cameras)
+    assert test(body, np.zeros((0, 3))) is False
+    assert test(body + (20.0, 0.0, 0.0), body) is False    # out of every view: nothing to judge
