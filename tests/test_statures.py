@@ -29,7 +29,7 @@ def test_every_stature_is_tracked_and_nobody_is_untracked_for_a_second(scored):
     assert all(s <= 1.0 for s in scored["untracked_s"].values()), scored["untracked_s"]
     t = scored["tracking"]
     assert t["misses"] <= 0.03 * t["truths"] and t["mismatches"] <= 1, t
-    assert t["mota"] >= 0.85 and t["idf1"] >= 0.85 and t["motp_mm"] <= 60, t   # the phantom's frames: below
+    assert t["mota"] >= 0.9 and t["idf1"] >= 0.9 and t["motp_mm"] <= 60, t
     for band, (hit, frames) in scored["detection_by_stature"].items():
         assert frames == 0 or hit / frames >= 0.95, (band, hit, frames)
 
@@ -43,10 +43,10 @@ def test_a_person_gesturing_in_place_and_a_seated_person_are_found(scored):
 
 def test_every_person_is_posed(scored):
     p = scored["pose"]
-    assert p["frames_scored"] >= 190 and p["mmta"] >= 0.6 and p["mpjpe_mm"] <= 110, p
+    assert p["frames_scored"] >= 190 and p["mmta"] >= 0.75 and p["mpjpe_mm"] <= 90, p
 
 
-@pytest.mark.xfail(strict=True, reason="issue 22, open: where the silhouette cones of the 1.50 m and the 1.62 m "
-                                       "person cross above the table a blob holds a track for ~60 frames")
 def test_no_phantom_is_tracked_or_posed(scored):
+    """Where the cones of the 1.50 m and the 1.62 m person cross above the table, a blob
+    the tree calls a person held a track for 63 frames before the ghost test."""
     assert scored["phantom_poses"] == 0 and not scored["phantom_tracks"], scored
