@@ -423,9 +423,17 @@ class MultiTracker:
         components the tracks hold (the people known: whom a ghost is made of)."""
         if self.ghost_test is None or not hosts:
             return False
-        others = np.isin(scene.labels, np.fromiter(hosts, dtype=np.int64, count=len(hosts)))
-        others[mine] = False
-        if self.ghost_test(scene.centres_at(mine), scene.centres_at(np.nonzero(others)[0])):
+        if getattr(self, "_known_frame", None) is not scene:   # the known people's voxels, once a frame
+            self._known_frame = scene
+            self._known = np.isin(scene.labels, np.fromiter(hosts, dtype=np.int64, count=len(hosts)))
+            self._known_centres = scene.centres_at(np.nonzero(self._known)[0])
+        if self._known[mine].any():   # a piece of a tracked component: the rest of it
+            others = self._known.copy()
+            others[mine] = False
+            known = scene.centres_at(np.nonzero(others)[0])
+        else:                         # a component no track holds
+            known = self._known_centres
+        if self.ghost_test(scene.centres_at(mine), known):
             self.ghosts += 1
             return True
         return False
