@@ -177,19 +177,42 @@ def noisy_masks(masks, seed, flip=0.02):
     return out
 
 
-@pytest.mark.parametrize("tolerance,min_views", [(0, 1), (1, 2), (2, 2), (1, 3)])
-def test_hierarchical_equals_flat(calib, frame, tolerance, min_views):
+@pytest.mark.parametrize("tolerance,min_views,miss_support", [(0, 1, 0), (1, 2, 0), (2, 2, 0), (1, 3, 0), (1, 2, 4),
+                                                               (2, 2, 3)])
+def test_hierarchical_equals_flat(calib, frame, tolerance, min_views, miss_support):
     """The coarse-to-fine carving gives exactly the flat result, also on noisy masks
     (salt and pepper), with a camera missing, and at the grid's padded edges."""
     masks, _ = frame
-    hier = Reconstructor(calib, 0.05, tolerance=tolerance, min_views=min_views, colouring="none")
-    flat = Reconstructor(calib, 0.05, tolerance=tolerance, min_views=min_views, method="flat", colouring="none")
+    opts = dict(tolerance=tolerance, min_views=min_views, miss_support=miss_support, colouring="none")
+    hier = Reconstructor(calib, 0.05, **opts)
+    flat = Reconstructor(calib, 0.05, method="flat", **opts)
     cases = [masks, noisy_masks(masks, 3), {**noisy_masks(masks, 4), "cam1": None},
              {n: np.ones_like(m) for n, m in masks.items()}]
     for m in cases:
         a, b = hier.carve(m), flat.carve(m)
         assert len(a) > 0
         np.testing.assert_array_equal(a, b)
+
+
+def test_miss_support_lies_between_the_tolerances(calib, frame):
+    """``miss_support``: a voxel one camera misses is kept only with that many foreground
+    views. 0 (or at most min_views) is tolerance 1 as written, the number of cameras is
+    tolerance 0, and the sets in between are nested; every voxel it drops is one a camera
+    misses, seen by fewer cameras than asked."""
+    masks = noisy_masks(frame[0], 7, flip=0.01)
+    masks["cam2"] = masks["cam2"].copy()
+    masks["cam2"][:, : masks["cam2"].shape[1] // 2] = 0          # one camera loses half the body
+    sets = {}
+    for s in range(0, 6):
+        r = Reconstructor(calib, VOXEL, miss_support=s, colouring="none")
+        sets[s] = as_set(r.grid, r.carve(masks))
+    k0 = as_set(r.grid, Reconstructor(calib, VOXEL, tolerance=0, colouring="none").carve(masks))
+    assert sets[0] == sets[1] == sets[2]
+    assert sets[5] == k0
+    for s in range(2, 5):
+        assert sets[s + 1] <= sets[s]
+    assert len(sets[4]) < len(sets[0])      # the half-missing camera's voxels need 4 other views
+    assert len(sets[5]) < len(sets[4])
 
 
 @pytest.mark.parametrize("brick,box_levels", [(4, 1), (8, 1), (8, 3), (16, 2)])

@@ -25,6 +25,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import Mask, Voxels
+from app.reconstruction.reconstructor import PIPELINE_CARVING
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
 from workers.base import Worker
 
@@ -42,8 +43,10 @@ class Reconstruction(Worker):
     ACK_ON_HANDLE = False   # a frame is finished when reconstructed or given up
     DEFAULTS = {
         "voxel_size": 0.04,          # metres (0.02 .. 0.15)
-        "tolerance": 1,              # k: cameras that may miss an occupied voxel (§2.2.4)
-        "min_views": 2,              # cameras that must see a voxel as foreground
+        "tolerance": PIPELINE_CARVING["tolerance"],   # k: cameras that may miss an occupied voxel (§2.2.4)
+        "min_views": PIPELINE_CARVING["min_views"],   # cameras that must see a voxel as foreground
+        "miss_support": PIPELINE_CARVING["miss_support"],  # cameras that must see a voxel as foreground when one
+                                     # misses it (issue 22: phantoms where few cameras see); 0 = §2.2.4
         "method": "hierarchical",    # hierarchical (coarse-to-fine, Caillette §6.1) or flat
         "colouring": "visibility",   # visibility (depth buffers), raymarch, naive, or none
         "wait_ms": 80.0,             # longest wait for the cameras of one frame
@@ -70,8 +73,8 @@ class Reconstruction(Worker):
                                      # 4 cm from 640x480 cameras: 2.4 / 0.6 kB a camera); 0 = not sent
     }
 
-    RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "wait_ms": (1.0, 10000.0),
-              "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
+    RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "miss_support": (0, 64),
+              "wait_ms": (1.0, 10000.0), "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
               "occlusion_evidence": (0, 100000), "occlusion_ratio": (0.0, 1.0), "occlusion_cell": (0.01, 1.0),
               "ghost_share": (0.0, 1.0),
               "footprint": (0.0, 1.0), "min_component": (0, 1_000_000), "silhouettes": (0, 64)}
@@ -100,7 +103,8 @@ class Reconstruction(Worker):
         try:
             self.reconstructor = Reconstructor(
                 calib, p["voxel_size"], mask_sizes=mask_sizes, colour_sizes=colour_sizes,
-                tolerance=p["tolerance"], min_views=p["min_views"], method=p["method"],
+                tolerance=p["tolerance"], min_views=p["min_views"], miss_support=p["miss_support"],
+                method=p["method"],
                 colouring=p["colouring"], cache=p["cache"], min_top=p["min_top"],
                 occlusion=p["occlusion"], learn_every=p["learn_every"], occlusion_top=p["occlusion_top"],
                 occlusion_evidence=p["occlusion_evidence"] or None, occlusion_ratio=p["occlusion_ratio"] or None,

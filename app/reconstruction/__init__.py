@@ -4,7 +4,7 @@ colouring with visibility and the surface set. Pure numpy/numba, no messaging.""
 from .colouring import COLOURINGS, VoxelColourer, boundary_voxels
 from .grid import BrickLayout, VoxelGrid
 from .projection import ProjectionTable
-from .reconstructor import METHODS, Reconstructor
+from .reconstructor import METHODS, PIPELINE_CARVING, Reconstructor
 
 __all__ = ["VoxelGrid", "BrickLayout", "ProjectionTable", "VoxelColourer", "Reconstructor", "boundary_voxels",
-           "METHODS", "COLOURINGS"]
+           "METHODS", "COLOURINGS", "PIPELINE_CARVING"]

@@ -9,7 +9,9 @@ cameras) and count the foreground answers ``N_fg``. ``V`` is occupied when
 i.e. at most ``tolerance`` cameras that see it call it background ("some tolerance is
 permitted to cope with faulty segmentations"), and it is never occupied on the word of
 fewer than ``min_views`` cameras. A camera without a mask this frame lowers
-``N_visible``.
+``N_visible``. With ``miss_support`` > 0 (not in the thesis) a voxel that any camera
+calls background also needs ``N_fg >= miss_support``: the tolerance serves a body seen
+by many cameras, not a place only two or three cones reach (see :func:`carve_cells`).
 
 Two ways to evaluate it, with the same occupied set:
 
@@ -51,7 +53,7 @@ __all__ = ["classify_cells", "carve_cells", "fill_cells", "mask_votes", "occlude
 
 @njit(cache=True, nogil=True)
 def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, min_views, expand, out_edge, out_full,
-                   sat_fg=None, full_views=0):
+                   sat_fg=None, full_views=0, miss_support=0):
     """Classify ``cells`` (ids at one box level) from the summed-area tables ``sat`` of
     the cameras ``cams`` (those with a mask this frame).
 
@@ -64,6 +66,11 @@ def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, m
     ``sat_fg`` the foreground pixels alone: a camera surely says foreground only when
     its whole box is foreground in ``sat_fg``. A cell is foreground only with at least
     ``max(min_views, full_views)`` cameras surely saying so.
+
+    ``miss_support`` (see :func:`carve_cells`): a cell some camera surely calls
+    background is dropped when fewer than ``miss_support`` cameras may say foreground,
+    and a cell is foreground only if no camera may say background or at least
+    ``miss_support`` surely say foreground.
     """
     fill_views = max(min_views, full_views)
     n_edge = 0
@@ -111,9 +118,9 @@ def classify_cells(cells, boxes, cams, sat, sat_offset, sat_stride, tolerance, m
                         break
             if may_fg + (n_cams - 1 - a) < min_views:
                 break
-        if sure_bg > tolerance or may_fg < min_views:
+        if sure_bg > tolerance or may_fg < min_views or (sure_bg > 0 and may_fg < miss_support):
             continue
-        if sure_fg >= fill_views and may_bg <= tolerance:
+        if sure_fg >= fill_views and may_bg <= tolerance and (may_bg == 0 or sure_fg >= miss_support):
             out_full[n_full] = cell
             n_full += 1
         elif expand:
@@ -173,12 +180,13 @@ def _vote(v, c, i, j, k, q, depth_coef, occ_depth, k_top):
 
 @njit(cache=True, nogil=True)
 def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolerance, min_views, brick_key, local_key,
-                         shift_i, shift_j, out, n, support=0, k_top=1 << 30):
+                         shift_i, shift_j, out, n, support=0, k_top=1 << 30, miss_support=0):
     """:func:`carve_cells` with learnt occluders: a camera abstains on a voxel behind
     one of its occluders (its pixel votes :data:`OCC_VOTE` and the voxel's depth in
     that camera, ``depth_coef . (i, j, k, 1)``, is at least ``occ_depth`` there). A
     voxel on which a camera abstains needs ``support`` foreground votes (and
-    ``min_views``). Cameras abstain only on voxels below layer ``k_top``."""
+    ``min_views``). Cameras abstain only on voxels below layer ``k_top``. A voxel some
+    camera calls background needs ``miss_support`` foreground votes (:func:`carve_cells`)."""
     n_cams = lut.shape[1]
     bshift = np.int64(0)
     while (np.int64(1) << bshift) < local_key.shape[0]:
@@ -204,7 +212,9 @@ def carve_cells_occluded(cells, shift, lut, votes, depth_coef, occ_depth, tolera
                 if v == 0 and votes[q] == OCC_VOTE:
                     abstain += 1
             fg = total & MAX_CAMERAS
-            if (total >> VOTE_SHIFT) <= tolerance and fg >= min_views and (abstain == 0 or fg >= support):
+            nbg = total >> VOTE_SHIFT
+            if nbg <= tolerance and fg >= min_views and (abstain == 0 or fg >= support) \
+                    and (nbg == 0 or fg >= miss_support):
                 out[n] = key
                 n += 1
     return n
@@ -276,7 +286,8 @@ def dissent_cells(cells, shift, lut, votes, raw, depth_coef, occ_depth, dissent,
 
 
 @njit(cache=True, nogil=True)
-def carve_cells(cells, shift, lut, votes, tolerance, min_views, brick_key, local_key, out, n, early_exit=False):
+def carve_cells(cells, shift, lut, votes, tolerance, min_views, brick_key, local_key, out, n, early_exit=False,
+                miss_support=0):
     """Exact centre test (§2.2.4) of every voxel of ``cells`` (each ``2^shift``
     consecutive brick-layout positions). Appends the keys of the occupied voxels to
     ``out`` from index ``n``; returns the new count.
@@ -287,6 +298,12 @@ def carve_cells(cells, shift, lut, votes, tolerance, min_views, brick_key, local
     ``early_exit`` the cameras' votes stop at the ``tolerance + 1``-th background answer
     (faster where most voxels are empty, as in the flat scan; slower on the edge cells
     the hierarchical method leaves, where the branch is unpredictable).
+
+    ``miss_support`` (an addition to the thesis; 0 = §2.2.4 as written): a voxel that
+    some camera calls background is occupied only if at least ``miss_support`` cameras
+    call it foreground. The tolerance is there for a camera whose segmentation fails on
+    a body seen by many; with few cameras it mostly keeps the places where the cones of
+    two people cross (phantoms).
     """
     n_cams = lut.shape[1]
     bshift = np.int64(0)
@@ -307,7 +324,9 @@ def carve_cells(cells, shift, lut, votes, tolerance, min_views, brick_key, local
             else:
                 for c in range(n_cams):
                     total += votes[lut[p, c]]
-            if (total >> VOTE_SHIFT) <= tolerance and (total & MAX_CAMERAS) >= min_views:
+            nbg = total >> VOTE_SHIFT
+            fg = total & MAX_CAMERAS
+            if nbg <= tolerance and fg >= min_views and (nbg == 0 or fg >= miss_support):
                 out[n] = base_key + local_key[p & lmask]
                 n += 1
     return n

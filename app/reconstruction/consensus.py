@@ -2,7 +2,8 @@
 each occupied voxel background (thesis §2.2.4, the ``N_visible - N_fg`` of the
 occupancy test).
 
-The pipeline carves with tolerance ``k = 1`` (one camera may miss a voxel): tracking
+The pipeline carves with tolerance ``k = 1`` (one camera may miss a voxel, if at least
+``miss_support`` others see it: :data:`.reconstructor.PIPELINE_CARVING`): tracking
 and its person classifier need the complete hull, furniture hides limbs from one
 camera. That hull is 5-7x the body; the voxels no camera misses, the ``k = 0`` hull
 (every camera agrees), are 1.4-2x, which is what the pose likelihood (Ch. 6) can fit.

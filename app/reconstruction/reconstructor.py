@@ -30,10 +30,16 @@ from .occlusion import OccluderModel
 from .occlusion_cells import MISSES_SHIFT, CellOccluders, select_and_learn
 from .projection import ProjectionTable
 
-__all__ = ["Reconstructor", "METHODS", "OCCLUSIONS"]
+__all__ = ["Reconstructor", "METHODS", "OCCLUSIONS", "PIPELINE_CARVING"]
 
 METHODS = ("hierarchical", "flat", "fused")
 OCCLUSIONS = ("none", "learnt", "cells")
+
+#: The occupancy test the pipeline's reconstruction worker uses by default, and the tools
+#: that stand in for it offline (the person classifier's training voxels): tolerance 1
+#: (§2.2.4), never on fewer than 2 cameras, and a voxel a camera misses needs 3 others
+#: (``miss_support``; issue 22, measured on the random tuning scenes, docs/benchmarks.md).
+PIPELINE_CARVING = {"tolerance": 1, "min_views": 2, "miss_support": 3}
 
 
 class Reconstructor:
@@ -48,6 +54,9 @@ class Reconstructor:
     colour_sizes : ``{camera: (width, height)}`` of the colour images (default: the mask sizes).
     tolerance : ``k``, how many of the cameras that see a voxel may call it background (§2.2.4).
     min_views : the least number of cameras that must call a voxel foreground.
+    miss_support : the least number of cameras that must call a voxel foreground when
+        some camera calls it background (an addition to §2.2.4, :func:`.carving.carve_cells`;
+        0, the thesis: ``tolerance`` alone decides).
     method : ``"hierarchical"`` (coarse-to-fine, default), ``"flat"`` (every voxel) or
         ``"fused"``: Caillette et al.'s fused segmentation and reconstruction
         (:mod:`.fused`, Eqs. 5-6); its "masks" are per-pixel squared Mahalanobis
@@ -123,7 +132,7 @@ class Reconstructor:
                  abstain_support: bool = True, alpha: float = 0.99, samples: str = "all",
                  footprint: float = 0.0, footprint_radius: int = 1, min_component: int = 0,
                  occlusion_top: float = 0.0, misses: bool = False, occlusion_cell: float = 0.08,
-                 occlusion_attached: bool = True, ghost_share: float = 0.0):
+                 occlusion_attached: bool = True, ghost_share: float = 0.0, miss_support: int = 0):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if colouring not in COLOURINGS:
@@ -138,8 +147,10 @@ class Reconstructor:
             raise ValueError("footprint must be in [0, 1], footprint_radius >= 1 and min_component >= 0")
         if footprint > 0 and method == "fused":
             raise ValueError("the footprint test works with the hierarchical and flat methods, not with fused")
-        if tolerance < 0 or min_views < 1:
-            raise ValueError("tolerance must be >= 0 and min_views >= 1")
+        if tolerance < 0 or min_views < 1 or miss_support < 0:
+            raise ValueError("tolerance must be >= 0, min_views >= 1 and miss_support >= 0")
+        if miss_support > 0 and method == "fused":
+            raise ValueError("miss_support works with the hierarchical and flat methods, not with fused")
         if len(calibration.cameras) > MAX_CAMERAS:
             raise ValueError(f"at most {MAX_CAMERAS} cameras, got {len(calibration.cameras)}")
         t0 = time.perf_counter()
@@ -149,6 +160,7 @@ class Reconstructor:
         self.colouring = colouring
         self.tolerance = int(tolerance)
         self.min_views = int(min_views)
+        self.miss_support = int(miss_support)
         self.grid = VoxelGrid.from_room(calibration.room_min, calibration.room_max, voxel_size)
         self.layout = BrickLayout(self.grid, brick)
         mask_sizes = dict(mask_sizes or {})
@@ -349,10 +361,11 @@ class Reconstructor:
         t, lay = self.table, self.layout
         if self.occluders is None:
             return carve_cells(cells, shift, t.lut, self._votes, k, mv, lay.brick_key, lay.local_key, self._keys, n,
-                               early_exit)
+                               early_exit, self.miss_support)
         return carve_cells_occluded(cells, shift, t.lut, self._votes, self._depth_coef, self.occluders.occ_depth, k, mv,
                                     lay.brick_key, lay.local_key, lay.key_shift_i, lay.key_shift_j, self._keys, n,
-                                    self.occluders.support if self.abstain_support else 0, self._k_top)
+                                    self.occluders.support if self.abstain_support else 0, self._k_top,
+                                    self.miss_support)
 
     def occluder_share(self) -> dict:
         """``{camera: fraction of its mask's pixels that are learnt occluder pixels}``."""
@@ -443,7 +456,7 @@ class Reconstructor:
                                             lvl < last, self._edge[lvl], self._full[lvl],
                                             None if self.occluders is None else self._sat_fg,
                                             self.occluders.support if self.occluders is not None
-                                            and self.abstain_support else 0)
+                                            and self.abstain_support else 0, self.miss_support)
             if n_full:
                 n = fill_cells(self._full[lvl][:n_full], 3 * (L - lvl), lay.brick_key, lay.local_key, keys, n)
             cells = self._edge[lvl][:n_edge]
