@@ -36,19 +36,26 @@ def _code_version() -> str:
     return h.hexdigest()[:12]
 
 
-def _cache_file(recording: Path, voxel_size: float, frames: int | None) -> Path:
+def _cache_file(recording: Path, voxel_size: float, frames: int | None, carving: dict) -> Path:
     root = Path(os.environ.get("SMARTROOM_CACHE", Path.home() / ".cache" / "smartroom")).expanduser() / "voxels"
     stamp = (recording / "calibration.yaml").stat().st_mtime_ns
-    key = hashlib.sha1(f"{recording.resolve()}|{stamp}|{voxel_size:.4f}|{frames}|{_code_version()}".encode()).hexdigest()[:16]
+    test = ",".join(f"{k}={carving[k]}" for k in sorted(carving))
+    key = hashlib.sha1(f"{recording.resolve()}|{stamp}|{voxel_size:.4f}|{frames}|{test}|{_code_version()}".encode()
+                       ).hexdigest()[:16]
     return root / f"{recording.name}-{int(round(voxel_size * 1000))}mm-{key}.npz"
 
 
 def recording_voxels(recording, voxel_size: float, frames: int | None = None, cache: bool = True,
-                     progress=None) -> tuple[list[VoxelFrame], dict]:
+                     progress=None, carving: dict | None = None) -> tuple[list[VoxelFrame], dict]:
     """The voxels of the first ``frames`` frames of ``recording`` (all by default) and the
-    grid ``{"origin", "dims", "voxel_size"}``."""
+    grid ``{"origin", "dims", "voxel_size"}``, carved with the occupancy test ``carving``
+    (``tolerance``, ``min_views``, ``miss_support``; default: the pipeline's,
+    :data:`app.reconstruction.PIPELINE_CARVING`)."""
+    from app.reconstruction import PIPELINE_CARVING
+
     recording = Path(recording)
-    path = _cache_file(recording, voxel_size, frames)
+    carving = {**PIPELINE_CARVING, **(carving or {})}
+    path = _cache_file(recording, voxel_size, frames, carving)
     if cache and path.is_file():
         with np.load(path) as z:   # each z[...] reads the whole array: read each once
             arrays = {k: z[k] for k in z.files}
@@ -60,7 +67,7 @@ def recording_voxels(recording, voxel_size: float, frames: int | None = None, ca
                for f, t, a, b in zip(arrays["frames"], arrays["times"], starts, ends)]
         return out, {"origin": arrays["origin"].tolist(), "dims": arrays["dims"].tolist(),
                      "voxel_size": float(voxel_size)}
-    out, grid = _compute(recording, voxel_size, frames, progress)
+    out, grid = _compute(recording, voxel_size, frames, progress, carving)
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".partial.npz")
@@ -74,7 +81,7 @@ def recording_voxels(recording, voxel_size: float, frames: int | None = None, ca
     return out, grid
 
 
-def _compute(recording: Path, voxel_size: float, frames, progress):
+def _compute(recording: Path, voxel_size: float, frames, progress, carving: dict):
     from app.reconstruction import Reconstructor
     from app.recording import Recording
     from app.segmentation import SegmentationParams, camera_segmenter, recording_background, matched_scale
@@ -97,7 +104,7 @@ def _compute(recording: Path, voxel_size: float, frames, progress):
             colours[cam] = segs[cam].small
         if recon is None:
             recon = Reconstructor(calib, voxel_size, mask_sizes={c: m.shape[::-1] for c, m in masks.items()},
-                                  colour_sizes={c: im.shape[1::-1] for c, im in colours.items()})
+                                  colour_sizes={c: im.shape[1::-1] for c, im in colours.items()}, **carving)
         idx, col, surf, _ = recon.reconstruct(masks, colours)
         out.append(VoxelFrame(i, i / fps, np.array(idx), np.array(col), np.array(surf, dtype=bool)))
         if progress and i % 100 == 0:
