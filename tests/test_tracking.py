@@ -244,6 +244,29 @@ def test_colour_keeps_identities_through_a_hug_raw_swaps(back):
         assert any(len(thesis[f][0]) == 1 for f in range(30, 50))   # one of the huggers deleted
 
 
+def test_two_tracks_on_one_place_are_one_person_however_dressed():
+    """Two tracks whose centres are 0.1 m apart are one person's (no two bodies fit
+    there: a second track on a tall person's legs has other colours than the first on
+    the whole body), however dressed (``same_place``); 0.4 m apart and dressed
+    differently they are two people (a hug), alike they are one (the thesis's rule)."""
+    from types import SimpleNamespace
+
+    from app.tracking.tracker import MultiTracker
+
+    red, blue = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+
+    def target(x, ref):
+        return SimpleNamespace(x=np.array([x, 2.0, 0.9]), reference=ref)
+
+    tracker = MultiTracker(TrackerParams(filter="ss_colour"), load_tree())
+    assert tracker.duplicate_of(target(2.0, red), target(2.1, blue))
+    assert not tracker.duplicate_of(target(2.0, red), target(2.4, blue))
+    assert tracker.duplicate_of(target(2.0, red), target(2.4, red))
+    assert not tracker.duplicate_of(target(2.0, red), target(2.6, red))     # beyond duplicate_distance
+    off = MultiTracker(TrackerParams(filter="ss_colour", same_place=0.0), load_tree())
+    assert not off.duplicate_of(target(2.0, red), target(2.1, blue))
+
+
 def test_a_phantom_merged_for_a_few_frames_does_not_delay_the_track():
     """A person stands still; in frames 1-4 a low phantom (the visual hull's room corner,
     as on gesture1 at 2 cm) joins their blob and drags its centroid 0.5 m away. The

@@ -38,12 +38,13 @@ class Tracking(Worker):
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
         "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
         "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
+        "same_place": 0.2,         # m: a younger track this close to an older one is a duplicate, however dressed (0: off)
         "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
                                    # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
-    RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100),
+    RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100), "same_place": (0.0, 2.0),
               "snapshot_frames": (1, 1000)}
     WALK_SPEED = 1.5         # m/s: how far a person may have gone in a gap the tracker did not see
     RELOCATE_AFTER_S = 0.2   # a gap shorter than this needs no wider search
@@ -56,7 +57,8 @@ class Tracking(Worker):
         try:
             params = TrackerParams.from_dict({k: p[k] for k in ("filter", "samples", "particles", "seed")}
                                              | {"candidate_min_z": float(p["candidate_min_z"]),
-                                                "confirm_sure_frames": int(p["confirm_sure_frames"])})
+                                                "confirm_sure_frames": int(p["confirm_sure_frames"]),
+                                                "same_place": float(p["same_place"])})
         except (TypeError, ValueError) as exc:
             raise InputError(f"tracking: {exc}") from None
         name = p["classifier"]

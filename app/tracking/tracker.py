@@ -13,7 +13,8 @@ Each frame (:meth:`MultiTracker.update`):
    share would overrule its colours in a merged blob);
 2. deletion (§4.2.3): a target that falls within ``duplicate_distance`` of an older one
    for ``duplicate_frames`` frames is a duplicate (with colour, beyond the thesis, only
-   if also dressed alike: ``duplicate_similarity``); a target whose support (the weight of
+   if also dressed alike: ``duplicate_similarity``, or within ``same_place``, where two
+   bodies do not fit, however dressed); a target whose support (the weight of
    the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
    frames has lost its person (the thesis's low efficiency); a target whose component
    the classifier calls no-person for ``no_person_frames`` frames is lost;
@@ -95,6 +96,7 @@ class TrackerParams:
     duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
     duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
     duplicate_similarity: float = 0.5   # colour filters: ... and dressed alike (Bhattacharyya >= this; 0: the thesis)
+    same_place: float = 0.2        # ... or closer than this (xy), however dressed: two bodies do not fit (0: off)
     min_support_kg: float = 10.0
     lost_frames: int = 8
     no_person_frames: int = 18
@@ -319,8 +321,7 @@ class MultiTracker:
             t.age += 1
             t.low_support = t.low_support + 1 if support[i] < p.min_support_kg else 0
             t.no_person = 0 if person[i] else t.no_person + 1
-            dup = any(((o.target.x[:2] - t.target.x[:2]) ** 2).sum() < p.duplicate_distance ** 2
-                      and self._alike(o.target, t.target) for o in keep if o.id < t.id)
+            dup = any(self.duplicate_of(o.target, t.target) for o in keep if o.id < t.id)
             t.close = t.close + 1 if dup else 0
             # a failing share is the younger track's fault while an older track holds the component
             shared_fail = t.no_person >= p.share_frames and hosts[i] >= 0 and oldest[hosts[i]] != t.id
@@ -335,6 +336,16 @@ class MultiTracker:
                 continue
             keep.append(t)
         self.tracks = keep
+
+    def duplicate_of(self, older, younger) -> bool:
+        """``younger`` is on ``older``'s person this frame: within ``duplicate_distance``
+        and dressed alike, or (beyond the thesis) within ``same_place`` whatever the
+        colours: two people's centres are never that close (a second track on one tall
+        person's legs has other colours than the first on the whole body)."""
+        d2 = float(((older.x[:2] - younger.x[:2]) ** 2).sum())
+        if d2 >= self.p.duplicate_distance ** 2:
+            return False
+        return d2 < self.p.same_place ** 2 or self._alike(older, younger)
 
     def _alike(self, a, b) -> bool:
         """Beyond the thesis (``duplicate_similarity``): with colour, two close targets
