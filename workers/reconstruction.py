@@ -74,7 +74,8 @@ class Reconstruction(Worker):
     }
 
     RANGES = {"voxel_size": (0.005, 0.5), "tolerance": (0, 8), "min_views": (1, 64), "miss_support": (0, 64),
-              "wait_ms": (1.0, 10000.0), "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0), "occlusion_top": (0.0, 10.0),
+              "wait_ms": (1.0, 10000.0), "camera_timeout_s": (0.05, 600.0), "min_top": (0.0, 3.0),
+              "occlusion_top": (0.0, 10.0),
               "occlusion_evidence": (0, 100000), "occlusion_ratio": (0.0, 1.0), "occlusion_cell": (0.01, 1.0),
               "ghost_share": (0.0, 1.0),
               "footprint": (0.0, 1.0), "min_component": (0, 1_000_000), "silhouettes": (0, 64)}

@@ -38,7 +38,8 @@ class Tracking(Worker):
         "classifier": "default",   # the person test of new tracks; "none": component verdicts only
         "candidate_min_z": 0.9,    # m: a new component's candidate placed by its voxels this high; -.inf: centroid
         "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
-        "same_place": 0.2,         # m: a younger track this close to an older one is a duplicate, however dressed (0: off)
+        "same_place": 0.2,         # m: a younger track this close to an older one is a duplicate, however
+                                   # dressed (two bodies do not fit; 0: off)
         "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
                                    # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)

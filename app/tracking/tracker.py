@@ -155,6 +155,9 @@ class MultiTracker:
         self.events: list[tuple] = []
         self._col_first = None
         self._scratch = None
+        #: the ghost test's view of one frame (:meth:`_ghost`): the voxels of the tracked
+        #: people's components (mask) and their centres, built once a frame, dropped after it
+        self._known_frame = self._known = self._known_centres = None
 
     # -- one frame --------------------------------------------------------------------
     def update(self, scene: SceneFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -165,6 +168,7 @@ class MultiTracker:
                 self._refine(scene)
         self._delete(scene)
         self._create(scene)
+        self._known_frame = self._known = self._known_centres = None
         ids = np.array([t.id for t in self.tracks], dtype=np.int64)
         pos = np.array([t.target.x for t in self.tracks], dtype=np.float64).reshape(-1, 3)
         return ids, pos
@@ -434,7 +438,7 @@ class MultiTracker:
         components the tracks hold (the people known: whom a ghost is made of)."""
         if self.ghost_test is None or not hosts:
             return False
-        if getattr(self, "_known_frame", None) is not scene:   # the known people's voxels, once a frame
+        if self._known_frame is not scene:   # the known people's voxels, once a frame
             self._known_frame = scene
             self._known = np.isin(scene.labels, np.fromiter(hosts, dtype=np.int64, count=len(hosts)))
             self._known_centres = scene.centres_at(np.nonzero(self._known)[0])
