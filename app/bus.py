@@ -116,6 +116,9 @@ class Keys:
     def poses(self) -> str:
         return f"{self.root}/poses"
 
+    def keypoints(self) -> str:
+        return f"{self.root}/keypoints"
+
     def stats(self, worker: str = "*") -> str:
         return f"{self.root}/stats/{worker}"
 

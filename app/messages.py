@@ -533,3 +533,38 @@ class Blobs(Message):
     def centres(self) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3)."""
         return np.asarray(self.origin) + (self.indices.astype(np.float64) + 0.5) * self.voxel_size
+
+
+@dataclass(kw_only=True)
+class Keypoints(Message):
+    """2D body keypoints of one frame's tracked people in some cameras (a keypoints
+    worker's share, :mod:`app.keypoints`): track ids (N,), the ``cameras`` (C names) and
+    ``points`` (N, C, 15, 3) float32: u, v in the camera's calibrated pixels and the
+    detector's confidence 0..1 (0: that camera gave nothing for the joint), joints in
+    :data:`JOINTS` order. ``worker`` names the sender (a pose worker waits for every
+    keypoints worker of the layout)."""
+
+    TYPE_ID: ClassVar[int] = 11
+    ARRAYS: ClassVar[tuple[str, ...]] = ("tracks", "points")
+    worker: str = ""
+    cameras: list = field(default_factory=list)
+    tracks: np.ndarray = None
+    points: np.ndarray = None
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+        cams = _names(self, "cameras")
+        if len(set(cams)) != len(cams):
+            raise MessageError("Keypoints: a camera named twice")
+        tracks = _array(self, "tracks", "<i4 <i8 <u4", (None,), allow_empty=True)
+        n = tracks.size
+        if n and len(np.unique(tracks)) != n:
+            raise MessageError("Keypoints: a track named twice")
+        p = _array(self, "points", "<f4", (n, len(cams), len(JOINTS), 3), allow_empty=n == 0 or not cams)
+        if p.size:
+            c = p[..., 2]
+            if c.min() < 0 or c.max() > 1:
+                raise MessageError("Keypoints: a confidence outside 0..1")
+            if np.abs(p[..., :2]).max() > 4 * _MAX_SIDE:
+                raise MessageError("Keypoints: a point far outside every image")

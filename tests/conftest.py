@@ -22,9 +22,10 @@ def long_recording(tmp_path_factory):
     return write_tiny_recording(tmp_path_factory.mktemp("rec") / "long", frames=250)
 
 
-def smartroom(*args, timeout=120, **kw):
-    """Run the CLI as a separate process, as a user would."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+def smartroom(*args, timeout=120, env=None, **kw):
+    """Run the CLI as a separate process, as a user would (``env``: its environment, this
+    process's by default)."""
+    env = dict(os.environ if env is None else env, PYTHONUNBUFFERED="1")
     return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, cwd=ROOT, env=env, **kw)
 

@@ -81,6 +81,7 @@ from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
 from app.pose.model import joints_subset, segments_needed, standing_root_height
 from app.pose.silhouette import silhouette_coverage
+from app.keypoints.fusion import keypoint_penalty
 
 __all__ = ["CoverageScorer", "coverage", "floor_penalty", "stance_penalty", "leg_penalties", "ground_penalty",
            "anchor_penalty", "STANCE_FREE"]
@@ -221,6 +222,7 @@ class CoverageScorer(Scorer):
         self.ground = 0.0          # m: deviation of the ground prior (no ankle below its standing height); 0 = off
         self.anchor = None         # (track x, y, free radius m, deviation m) or None: the root near its track
         self.silhouette = None     # (PersonSilhouettes, sigma^2, Lut) or None: app.pose.silhouette's term
+        self.keypoints = None      # (PersonKeypoints, sigma m, gate m, min confidence) or None: app.keypoints.fusion
         self._sil_stamp = None
         self._sil_token = 1
 
@@ -234,6 +236,9 @@ class CoverageScorer(Scorer):
             lw = lw - 0.5 * miss ** 2 / self.sigma2
         if self.silhouette is not None and np.all(act | ~self.expected):
             lw = lw - self._silhouette_penalty(states, act)
+        if self.keypoints is not None:
+            person, sigma, gate, conf = self.keypoints
+            lw = lw - keypoint_penalty(states, self.flesh.height, person, sigma, gate, conf, act)
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
             floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
                                           self.stance if self.both_feet > 0 else 0.0, self.ground)

@@ -35,6 +35,7 @@ from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer
 from app.pose.model import BodyModel, neutral_state
 from app.pose.observation import observe
+from app.keypoints.fusion import keypoint_hands
 
 __all__ = ["PoseSettings", "PersonPose", "PoseEstimator", "METHODS", "assign_voxels"]
 
@@ -73,6 +74,10 @@ class PoseSettings:
     silhouette: float = 0.0         # sigma^2 of the silhouette term (app.pose.silhouette); 0 = off (the thesis)
     silhouette_density: float = 2.0  # ... the model's points for it on a lattice of this many voxel sizes (Eq. 6.26's factor)
     silhouette_reach: float = 0.6   # m: a silhouette pixel is a track's when its ray passes this near the track only
+    keypoints: float = 0.0          # m: sigma of the 2D keypoint term (app.keypoints.fusion); 0 = off
+    keypoint_gate: float = 0.3      # m: a keypoint's error is truncated here (a wrong detection costs at most this)
+    keypoint_conf: float = 0.5      # keypoints less sure than this cost nothing
+    keypoint_hands: bool = True     # wrists triangulated from the keypoints are the importance function's hands
     height_frames: int = 5
     seed: int = 0
     room_lo: tuple = (0.0, 0.0, 0.0)
@@ -109,6 +114,8 @@ class PoseSettings:
             raise ValueError(f"density {self.density} must be >= 1")
         if not (self.silhouette >= 0 and self.silhouette_density >= 0.5 and self.silhouette_reach > 0):
             raise ValueError("silhouette must be >= 0 (0: off), silhouette_density >= 0.5, silhouette_reach > 0")
+        if not (self.keypoints >= 0 and self.keypoint_gate > 0 and 0 <= self.keypoint_conf <= 1):
+            raise ValueError("keypoints must be >= 0 (0: off), keypoint_gate > 0, keypoint_conf in 0..1")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
             raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
 
@@ -197,12 +204,14 @@ class PersonPose:
         self.switch = LimbSwitch(rng=self.rng, criterion=s.limb_criterion) if s.method.endswith("ddm") else None
 
     def update(self, centres: np.ndarray, surface, position: np.ndarray, gamma: int | None = None,
-               silhouettes=None):
+               silhouettes=None, keypoints=None):
         """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
         body is known; ``gamma``: SHBM-APF's particles per new DoF this frame (the
         estimator's budget, :meth:`PoseSettings.shbm_gamma`), None for the settings';
         ``silhouettes``: the person's :class:`~app.pose.silhouette.PersonSilhouettes`
-        (scored when the settings' ``silhouette`` > 0) or None."""
+        (scored when the settings' ``silhouette`` > 0) or None; ``keypoints``: the person's
+        :class:`~app.keypoints.fusion.PersonKeypoints` (scored when the settings'
+        ``keypoints`` > 0, their triangulated wrists the importance function's hands) or None."""
         s = self.s
         velocity = None
         if self.last_position is not None:
@@ -235,7 +244,13 @@ class PersonPose:
         self.scorer.both_feet = s.feet if (standing and s.floor > 0) else 0.0
         if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:
             self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
+        use_kp = keypoints is not None and s.keypoints > 0
+        self.scorer.keypoints = (keypoints, s.keypoints, s.keypoint_gate, s.keypoint_conf) if use_kp else None
         det = detect(centres, self.height, velocity)
+        if det is not None and use_kp and s.keypoint_hands:
+            hands = keypoint_hands(keypoints, self.height, s.keypoint_conf)
+            if len(hands):
+                det.hands = hands
         importance = Importance(det, self.height, s.ik) if det is not None else None
         if self.state is None:
             start = neutral_state(self.height, (position[0], position[1], None))
@@ -279,10 +294,11 @@ class PoseEstimator:
         self.settings.validate()
         self.rng = np.random.default_rng(self.settings.seed)
 
-    def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None) -> dict:
+    def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None, keypoints=None) -> dict:
         """``{track id: (joints (15, 3), active (15,))}`` for every track with a body
         (``only``: a predicate on track ids; the others still own their voxels);
-        ``view``: the frame's :class:`~app.pose.silhouette.SilhouetteView` or None."""
+        ``view``: the frame's :class:`~app.pose.silhouette.SilhouetteView` or None;
+        ``keypoints``: ``{track id: PersonKeypoints}`` (:mod:`app.keypoints.fusion`) or None."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
@@ -301,7 +317,8 @@ class PoseEstimator:
                     [self.settings.seed, tid]))
             mine = owner == k
             res = person.update(centres[mine], None if surface is None else surface[mine], positions[k], gamma,
-                                None if silhouettes is None else silhouettes[k])
+                                None if silhouettes is None else silhouettes[k],
+                                None if keypoints is None else keypoints.get(tid))
             if res is not None:
                 out[tid] = res
         for gone in set(self.people) - set(ids):

@@ -84,12 +84,12 @@ def silhouette_view(masks: list, names: list, calibration, settings):
 
 
 def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: dict, only=None,
-               calibration=None) -> PosedFrame:
+               calibration=None, keypoints=None) -> PosedFrame:
     """One frame through a :class:`~app.pose.estimator.PoseEstimator` as the pose worker
     poses it: the voxel subset of ``params`` (the worker's ``voxels``, ``tolerant_*``), its
     surface recomputed where a subset is taken, the silhouettes the voxels carry
     (with the run's ``calibration``; :func:`silhouette_view`). ``vox``: a
-    :class:`~app.messages.Voxels`."""
+    :class:`~app.messages.Voxels`; ``keypoints``: ``{track: PersonKeypoints}`` or None."""
     centres = vox.centres()
     surface = vox.surface if vox.surface is not None and len(vox.surface) == len(vox.indices) else None
     keep = pose_subset(vox.misses, centres, positions, mode=params["voxels"], cameras=len(vox.cameras),
@@ -101,4 +101,5 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
         kept = float(keep.mean())
     masks = vox.silhouette_masks() if estimator.settings.silhouette > 0 else []
     view, why = silhouette_view(masks, vox.cameras, calibration, estimator.settings)
-    return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view), kept, why)
+    return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view, keypoints=keypoints),
+                      kept, why)
