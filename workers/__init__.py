@@ -21,6 +21,7 @@ KINDS = {
     "cca": "workers.cca:ComponentAnalysis",
     "tracking": "workers.tracking:Tracking",
     "pose": "workers.pose:Pose",
+    "keypoints": "workers.keypoints:KeypointsWorker",
     "recorder": "workers.recorder:Recorder",
     "viewer": "workers.viewer:Viewer",
     "monitor": "workers.monitor:Monitor",
@@ -62,7 +63,7 @@ def upstream_of(layout, spec) -> list[str]:
         if "stats" in me.CONSUMES:
             names.append(other.name)
             continue
-        for stage in set(cls.PRODUCES) & set(me.CONSUMES):
+        for stage in set(cls.PRODUCES) & me.consumes(spec):
             theirs = _cameras(other)
             if stage in me.PER_CAMERA and mine is not None and theirs is not None and not (mine & theirs):
                 continue

@@ -38,6 +38,15 @@ camera's mask carves from the consensus voxels. The worker then needs the run's
 calibration (the recording's, or ``--calibration``); voxels without silhouettes are posed
 without the term (one warning).
 
+``keypoints`` (sigma, m; 0 = off) fuses a learned detector's 2D body keypoints
+(:mod:`app.keypoints.fusion`, issue 23): the layout's keypoints workers
+(:mod:`workers.keypoints`) send every tracked person's keypoints in their cameras, the
+worker waits for all of them with the voxels and tracks of a frame, and each person's
+model is also scored by the distance of its joints to the keypoints' viewing rays; the
+wrists triangulated from them are the importance function's hands
+(``keypoint_hands``). It needs the run's calibration, and a keypoints worker in the
+layout (``deploy/layouts/keypoints.yaml``).
+
 A restarted pose worker carries every person's filter on: the estimator's state
 (:mod:`app.pose.snapshot`) is saved with the frame it belongs to every
 ``snapshot_frames`` frames (and with the worker's state); the next incarnation restores
@@ -51,7 +60,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.errors import InputError
-from app.messages import Poses, Tracks, Voxels
+from app.messages import Keypoints, Poses, Tracks, Voxels
 from app.pose.selection import pose_frame
 from workers.base import Worker
 from workers.restarts import REPLAY_FRAMES
@@ -64,7 +73,7 @@ class Pose(Worker):
     ORDER = 5
     CONSUMES = ("voxels", "tracks")
     PRODUCES = ("poses",)
-    ACCEPTS = (Voxels, Tracks)
+    ACCEPTS = (Voxels, Tracks, Keypoints)
     INBOX_DEPTH = 4
     ACK_ON_HANDLE = False   # a frame is finished once posed (its voxels and tracks are both in)
     DEFAULTS = {
@@ -109,6 +118,11 @@ class Pose(Worker):
         "silhouette_density": 2.0,  # the model's points for the term on a lattice of this many voxel sizes (about a
                                     # pixel of the silhouettes the reconstruction sends)
         "silhouette_reach": 0.6,    # m: a silhouette pixel is a person's when its ray passes this near only that track
+        "keypoints": 0.0,           # m: sigma of the 2D keypoint term (app.keypoints.fusion; the layout's keypoints
+                                    # workers send them); 0 = off
+        "keypoint_gate": 0.3,       # m: a keypoint's error is truncated here
+        "keypoint_conf": 0.5,       # keypoints less sure than this cost nothing
+        "keypoint_hands": True,     # triangulated wrists are the importance function's hands
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
@@ -122,7 +136,14 @@ class Pose(Worker):
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
+              "keypoints": (0.0, 10.0), "keypoint_gate": (0.01, 10.0), "keypoint_conf": (0.0, 1.0),
               "snapshot_frames": (1, 1000)}
+
+    @classmethod
+    def consumes(cls, spec) -> set[str]:
+        """Voxels and tracks; the keypoints too when the keypoint term is on."""
+        on = float(spec.params.get("keypoints", 0) or 0) > 0
+        return set(cls.CONSUMES) | ({"keypoints"} if on else set())
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -138,7 +159,18 @@ class Pose(Worker):
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
         self.share = share
         # the silhouette term projects the model into the cameras the voxels were carved from
-        self.calibration = self.run_calibration() if self.settings.silhouette > 0 else None
+        self.calibration = self.run_calibration() if (self.settings.silhouette > 0 or self.settings.keypoints > 0) \
+            else None
+        # the keypoints of a frame come from every keypoints worker of the layout
+        from workers import producers_of
+        self.keypoint_workers = set(producers_of(self.layout, "keypoints")) if self.settings.keypoints > 0 else set()
+        if self.settings.keypoints > 0 and not self.keypoint_workers:
+            raise InputError("pose: keypoints > 0 but the layout has no keypoints worker (kind: keypoints)")
+        if self.settings.keypoints > 0 and self.calibration is None:
+            raise InputError("pose: the keypoint term needs the run's calibration (the recording's, or --calibration)")
+        self.keypoints: dict[int, dict[str, Keypoints]] = {}
+        self.keypoints_newest: dict[str, int] = {}   # the newest frame each keypoints worker sent
+        self.keypoint_frames = [0, 0]   # frames posed with keypoints of some person, frames posed
         self.silhouette_frames = [0, 0]   # frames posed with silhouettes, frames posed
         self.estimator = None
         self.grid = None
@@ -182,6 +214,8 @@ class Pose(Worker):
         self.done = -1
         self.voxels.clear()
         self.tracks.clear()
+        self.keypoints.clear()
+        self.keypoints_newest.clear()
         self._take_over(None)   # a snapshot belongs to its epoch's frame numbers
         self.catching = False
 
@@ -225,10 +259,11 @@ class Pose(Worker):
         estimator poses it (if its snapshot is older), nothing is published."""
         if isinstance(msg, Voxels):
             self._take_over(msg)
-        elif self.earlier_pending:   # tracks before the first voxels: kept for then
-            self.tracks[msg.frame] = msg
-            for f in sorted(self.tracks)[:-(KEEP_FRAMES + REPLAY_FRAMES)]:
-                del self.tracks[f]
+        elif self.earlier_pending:   # tracks (keypoints) before the first voxels: kept for then
+            self._store(msg)
+            for d in (self.tracks, self.keypoints):
+                for f in sorted(d)[:-(KEEP_FRAMES + REPLAY_FRAMES)]:
+                    del d[f]
             return
         if self.catching and self.at is not None and msg.epoch == self.at[0]:
             self._receive(msg)
@@ -238,25 +273,38 @@ class Pose(Worker):
             self._take_over(msg)
         self._receive(msg)
 
+    def _store(self, msg) -> None:
+        if isinstance(msg, Keypoints):
+            if self.settings.keypoints > 0 and msg.worker in self.keypoint_workers:
+                self.keypoints.setdefault(msg.frame, {})[msg.worker] = msg
+                self.keypoints_newest[msg.worker] = max(msg.frame, self.keypoints_newest.get(msg.worker, -1))
+        else:
+            (self.voxels if isinstance(msg, Voxels) else self.tracks)[msg.frame] = msg
+
     def _receive(self, msg) -> None:
         if msg.frame <= self.done:
             return
-        store = self.voxels if isinstance(msg, Voxels) else self.tracks
-        store[msg.frame] = msg
+        self._store(msg)
         keep = KEEP_FRAMES + (REPLAY_FRAMES if self.catching else 0)   # what is sent again comes in two streams
-        for d in (self.voxels, self.tracks):
+        for d in (self.voxels, self.tracks, self.keypoints):
             for f in sorted(d)[:-keep]:
                 del d[f]
-        ready = sorted(set(self.voxels) & set(self.tracks))
+        ready = set(self.voxels) & set(self.tracks)
+        if self.keypoint_workers:
+            # a frame waits for every keypoints worker, unless one has sent a later frame
+            # (what it sends comes in order: that frame's keypoints were lost or refused)
+            ready = {f for f in ready if all(w in self.keypoints.get(f, {}) or self.keypoints_newest.get(w, -1) > f
+                                             for w in self.keypoint_workers)}
+        ready = sorted(ready)
         # catching up, every complete frame is posed in order (the estimator must see each
         # frame the undisturbed run saw); otherwise the newest: older ones are behind
         for frame in ready if self.catching else ready[-1:]:
-            self._pose(self.voxels.pop(frame), self.tracks.pop(frame))
-            for d in (self.voxels, self.tracks):
+            self._pose(self.voxels.pop(frame), self.tracks.pop(frame), self.keypoints.pop(frame, None))
+            for d in (self.voxels, self.tracks, self.keypoints):
                 for f in [f for f in d if f <= frame]:
                     del d[f]
 
-    def _pose(self, vox: Voxels, tracks: Tracks) -> None:
+    def _pose(self, vox: Voxels, tracks: Tracks, keypoints: dict | None = None) -> None:
         publish = not self.put_out_before(vox.frame)   # put out by the earlier incarnation: catching up
         if self.catching and not self.caught_up_frames and vox.frame > self.done + 1:
             self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
@@ -265,7 +313,7 @@ class Pose(Worker):
             self.catching = False   # the caught-up frames are said when it publishes (Worker.publish)
         self.done = vox.frame
         try:
-            self._estimate(vox, tracks, publish)
+            self._estimate(vox, tracks, publish, keypoints)
         finally:
             if publish:
                 self.finished(vox.frame)   # older frames still waiting are given up with it
@@ -275,7 +323,7 @@ class Pose(Worker):
         if publish and vox.frame % int(self.params["snapshot_frames"]) == 0:
             self.save_arrays()
 
-    def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True) -> None:
+    def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True, keypoints: dict | None = None) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         # every track takes part in the voxel ownership; only this worker's share is posed
@@ -283,8 +331,15 @@ class Pose(Worker):
         if self.share is not None:
             k, n = self.share
             only = lambda t: t % n == k  # noqa: E731
+        people_kp = None
+        if self.keypoint_workers:
+            from app.keypoints.fusion import frame_keypoints
+            people_kp = frame_keypoints(list((keypoints or {}).values()), self.calibration)
+            if len(ids):   # frames with someone to pose
+                self.keypoint_frames[1] += 1
+                self.keypoint_frames[0] += bool(people_kp)
         result, kept, no_silhouettes = pose_frame(self._estimator(vox), vox, ids, positions, self.params,
-                                                  only=only, calibration=self.calibration)
+                                                  only=only, calibration=self.calibration, keypoints=people_kp)
         if self.settings.silhouette > 0:
             self._count_silhouettes(vox.frame, no_silhouettes)
         if kept is not None:
@@ -311,4 +366,5 @@ class Pose(Worker):
         kept = getattr(self, "kept", [])[-50:]
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
                 "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
-                "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0]))}
+                "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0])),
+                "keypoint_frames": list(getattr(self, "keypoint_frames", [0, 0]))}

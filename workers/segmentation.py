@@ -35,8 +35,8 @@ def scales(spec, layout, calibration) -> tuple[int, int]:
 def frame_scale(layout, calibration) -> int:
     """How much smaller than the camera a source may send the frames: the largest power of
     two that divides every mask and colour scale of the layout's segmentation workers
-    (:func:`scales`) and every camera's width and height (HD frames are 25 MB a set; the
-    segmentation reduces them anyway). 1: full size."""
+    (:func:`scales`), every keypoints worker's ``scale`` and every camera's width and height
+    (HD frames are 25 MB a set; the segmentation reduces them anyway). 1: full size."""
     from math import gcd
 
     from workers import producers_of
@@ -47,6 +47,8 @@ def frame_scale(layout, calibration) -> int:
         need = gcd(need, mask)
         if colour:
             need = gcd(need, colour)
+    for name in producers_of(layout, "keypoints"):   # the keypoint detector's crops want detail
+        need = gcd(need, int(layout.worker(name).params.get("scale", 1)))
     scale = 1
     while need and need % (scale * 2) == 0 and all(
             c.width % (scale * 2) == 0 and c.height % (scale * 2) == 0 for c in calibration.cameras):

@@ -18,6 +18,8 @@
   once into the cache), scored against their ground truth: MOTA, IDF1, MOTP, MMTA, MMTP,
   MPJPE per scene, mean and worst, detection by stature band and activity, phantoms
   (:mod:`app.benchmarks.accuracy`; tune on seeds below 1000, report on 1000 and up).
+- ``smartroom bench keypoints``: the keypoint cue's detector, ms per person crop on one
+  thread and its sure keypoints against the truth (simulated ``--scene``, default meeting3).
 - ``smartroom bench pose``: ms per frame of APF 600x6, SHBM-APF and DDM-APF at model
   densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
   ``--replay RUN --recording DIR --pose-seeds N``: the pose stage again over a run's own
@@ -31,7 +33,8 @@ from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
-TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy")
+TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy",
+           "keypoints")
 
 
 def add_arguments(p) -> None:
@@ -303,6 +306,16 @@ def _segmentation(args, out: Path) -> dict:
     return result
 
 
+def _keypoints(args, out: Path) -> dict:
+    """The keypoint cue's detector: ms per person crop on one thread, and its keypoints
+    against the simulated scene's truth (:mod:`app.benchmarks.keypoints`)."""
+    from app.benchmarks import keypoints
+
+    res = keypoints.run(args.scene, frames=args.frames or 100, zenithal=args.zenithal)
+    print(keypoints.format_table(res))
+    return res
+
+
 def _accuracy(args, out: Path) -> dict:
     from app.benchmarks.accuracy import bench_accuracy, command_line, format_report, parse_seeds
     from app.simulation.random_scene import RANDOM_SECONDS
@@ -325,6 +338,6 @@ def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
-               "segmentation": _segmentation, "accuracy": _accuracy}[args.target](args, out)
+               "segmentation": _segmentation, "accuracy": _accuracy, "keypoints": _keypoints}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
