@@ -125,12 +125,11 @@ def person_crop(camera, position, top: float, radius: float = 0.4, margin: float
     inside = (0 <= centre[0] < camera.width) and (0 <= centre[1] < camera.height)
     if not inside:
         return None
-    # image -> input: rotate so that `up` maps to -y (up in the input), scale, centre
+    # image -> input: a proper rotation (no mirror: the person's left stays their left)
+    # taking `up` to the input's -y and `across` (the image's u for an upright body) to
+    # its x, then the scale, centred
     s = INPUT / side
-    # a proper rotation (no mirror: the person's left stays their left): input y along
-    # -up, input x 90 degrees from it (the image's u for an upright body)
-    ex, ey = np.array([-up[1], up[0]]), -up
-    R = np.stack([ex, ey]) * s
+    R = np.stack([across, -up]) * s
     A = np.hstack([R, (INPUT / 2 - R @ centre)[:, None]])
     return Crop(A=A.astype(np.float64), side=float(side))
 
