@@ -11,14 +11,17 @@ poses arrive in frame order, and one that gave a frame up has moved on). The end
 the stream completes the rest. A pose worker that is away for long (live) must not
 hold everything back: past ``max_pending`` frames waiting, the oldest goes out with
 the shares that came, and is counted in ``partial``.
+
+The keypoints workers of a layout (each with its cameras) are joined the same way
+(:class:`SharedKeypoints`: one message with every camera's keypoints of the frame).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from app.messages import JOINTS, Poses
+from app.messages import JOINTS, Keypoints, Poses
 
-__all__ = ["SharedPoses"]
+__all__ = ["SharedPoses", "SharedKeypoints"]
 
 
 class SharedPoses:
@@ -68,3 +71,26 @@ class SharedPoses:
         order = order[keep]
         return Poses(frame=first.frame, epoch=first.epoch, stamp=min(m.stamp for m in msgs), t=first.t, worker="",
                      tracks=tracks[order], joints=joints[order], active=active[order])
+
+
+class SharedKeypoints(SharedPoses):
+    """A frame's :class:`~app.messages.Keypoints` from the keypoints workers, joined into
+    one message (their cameras side by side; a track one worker did not see has zero
+    confidence in its cameras)."""
+
+    @staticmethod
+    def _join(parts: dict[str, Keypoints]) -> Keypoints:
+        msgs = list(parts.values())
+        if len(msgs) == 1:
+            return msgs[0]
+        first = msgs[0]
+        tracks = sorted({int(t) for m in msgs for t in np.asarray(m.tracks).reshape(-1)})
+        cameras = [c for m in msgs for c in m.cameras]
+        points = np.zeros((len(tracks), len(cameras), len(JOINTS), 3), np.float32)
+        col = 0
+        for m in msgs:
+            for k, t in enumerate(np.asarray(m.tracks).reshape(-1)):
+                points[tracks.index(int(t)), col:col + len(m.cameras)] = m.points[k]
+            col += len(m.cameras)
+        return Keypoints(frame=first.frame, epoch=first.epoch, stamp=min(m.stamp for m in msgs), t=first.t,
+                         worker="joined", cameras=cameras, tracks=np.array(tracks, np.int64), points=points)

@@ -201,3 +201,88 @@ def test_the_pipeline_with_the_cue_poses_better(tmp_path_factory):
     print(f"random 5, 4 s: MMTA {wo['mmta']:.3f} -> {w['mmta']:.3f}, MPJPE {wo['mpjpe_mm']:.1f} -> "
           f"{w['mpjpe_mm']:.1f} mm")   # measured 0.724 -> 0.795, 90.1 -> 72.2 mm
     assert w["mmta"] >= wo["mmta"] + 0.03 and w["mpjpe_mm"] <= 0.9 * wo["mpjpe_mm"]
+
+
+def test_two_keypoints_workers_messages_join_into_one_frame():
+    from app.pose_shares import SharedKeypoints
+
+    shares = SharedKeypoints(["kpa", "kpb"])
+    a = Keypoints(frame=3, stamp=2.0, worker="kpa", cameras=["c0", "c1"], tracks=np.array([4, 7], np.int64),
+                  points=np.full((2, 2, 15, 3), 0.5, np.float32))
+    b = Keypoints(frame=3, stamp=1.0, worker="kpb", cameras=["c2"], tracks=np.array([7], np.int64),
+                  points=np.full((1, 1, 15, 3), 0.25, np.float32))
+    assert shares.add(a) == []                       # the frame waits for the other worker
+    (joined,) = shares.add(b)
+    joined.validate()
+    assert joined.cameras == ["c0", "c1", "c2"] and joined.tracks.tolist() == [4, 7] and joined.stamp == 1.0
+    assert np.all(joined.points[0, :2] == 0.5) and np.all(joined.points[0, 2] == 0)   # track 4: not in c2
+    assert np.all(joined.points[1, 2] == 0.25)
+
+
+def test_the_viewer_scene_draws_the_triangulated_keypoints():
+    from tests.test_viewer import _attribute, _frame_group
+    from app.viewer.scene import KEYPOINT_COLOUR, Scene
+
+    pts = np.random.default_rng(0).uniform(0, 2, (12, 3))
+    info, kids, obj = _frame_group(Scene().frame(2, keypoints=[(5, pts), (6, np.zeros((0, 3)))]))
+    assert info["parts"] == ["keypoints"] and set(kids) == {"keypoints 5"}     # none found for 6: nothing drawn
+    assert kids["keypoints 5"]["type"] == "Points" and kids["keypoints 5"]["userData"] == {"track": 5}
+    np.testing.assert_allclose(_attribute(obj, kids["keypoints 5"], "position"), pts, atol=1e-6)
+    material = next(m for m in obj["materials"] if m["uuid"] == kids["keypoints 5"]["material"])
+    assert material["depthTest"] is False and np.allclose(
+        [(material["color"] >> s & 255) / 255 for s in (16, 8, 0)], KEYPOINT_COLOUR, atol=0.01)
+
+
+@pytest.mark.integration
+def test_the_live_page_shows_the_keypoints_beside_the_skeleton(tmp_path):
+    """The keypoints layout with its viewer, paced, on random tuning scene 5 (4 s), read
+    in headless Chromium: a frame on show carries the track's triangulated keypoints
+    with its voxels, track and skeleton."""
+    _need_detector()
+    import re
+    import subprocess
+    import time
+
+    from app.bus import free_port
+    from tests.browser import Page, chromium, scene_state
+    from tests.conftest import ROOT, smartroom
+
+    binary = chromium()
+    if binary is None:
+        pytest.skip("needs headless Chromium (Debian package: chromium)")
+    rec = tmp_path / "random5"
+    r = smartroom("simulate", "--random", 5, "--seconds", 4, "--out", rec, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", "deploy/layouts/keypoints.yaml",
+                             "--recording", str(rec), "--out", str(tmp_path / "out"), "--set", f"viewer.port={port}"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    page = Page(binary, tmp_path / "profile")
+    seen = None
+    try:
+        url = None
+        for line in proc.stderr:
+            m = re.search(r"viewer: open (http://\S+)", line)
+            if m:
+                url = m.group(1)
+                break
+        assert url == f"http://127.0.0.1:{port}/static/"
+        page.goto(url)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and seen is None:
+            state = page.evaluate(scene_state(False), timeout=30)
+            if state and state.get("frame") and "keypoints" in state["frame"]["parts"] \
+                    and any(k.startswith("keypoints ") for k in state["children"]):
+                seen = state
+            time.sleep(0.3)
+        proc.communicate(timeout=300)
+    finally:
+        page.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0
+    assert seen is not None, "no frame with keypoints was shown"
+    assert set(seen["frame"]["parts"]) == {"voxels", "tracks", "poses", "keypoints"}
+    tracks = {k.split()[1] for k in seen["children"] if k.startswith("track ")}
+    assert {k.split()[1] for k in seen["children"] if k.startswith("keypoints ")} <= tracks
+    assert {k.split()[1] for k in seen["children"] if k.startswith("skeleton ")} == tracks

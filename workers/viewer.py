@@ -4,7 +4,9 @@ Draws the room box and floor, each camera's frustum and name, and the frame on s
 its voxels in their own colours (thinned for display when there are many), one
 ellipsoid, id label and trail per track, one skeleton per pose (bones and joints; a
 limb the model lost grey and thinner), and the pipeline's real-time factor at the top of
-the view. What is on show is one frame: a frame's voxels, tracks and poses are put
+the view. With the keypoint cue in the layout (``deploy/layouts/keypoints.yaml``) it also
+draws each track's keypoints triangulated from the cameras (yellow points over the
+skeletons: where the detector put the joints, beside where the filter put them). What is on show is one frame: a frame's voxels, tracks and poses are put
 together (:class:`app.viewer.frames.FrameAssembly`) and drawn in one step once all of
 them are in (a stage that is away is not waited for), so the skeletons never lag the
 voxels they were fitted to. It is a sink that never slows the pipeline: its inboxes keep
@@ -26,9 +28,9 @@ import sys
 import time
 
 from app.errors import InputError
-from app.messages import Poses, Stats, Tracks, Voxels
+from app.messages import Keypoints, Poses, Stats, Tracks, Voxels
 from app.monitor import REAL_TIME, PipelineView
-from app.pose_shares import SharedPoses
+from app.pose_shares import SharedKeypoints, SharedPoses
 from app.viewer.frames import FrameAssembly
 from app.viewer.scene import LIVE, Scene
 from app.viewer.server import MeshcatServer, ServerError
@@ -43,8 +45,8 @@ BEHIND_COLOUR = (1.0, 0.6, 0.25)
 
 class Viewer(Worker):
     KIND = "viewer"
-    CONSUMES = ("voxels", "tracks", "poses", "stats")
-    ACCEPTS = (Voxels, Tracks, Poses)
+    CONSUMES = ("voxels", "tracks", "poses", "keypoints", "stats")
+    ACCEPTS = (Voxels, Tracks, Poses, Keypoints)
     DISPLAY = True
     INBOX_DEPTH = 4      # a few frames of each kind: a frame waits for its slowest part
     #: a display has no results to duplicate: what comes after a restart is drawn as it comes
@@ -79,6 +81,8 @@ class Viewer(Worker):
         self.assembly = FrameAssembly(p["wait_s"])
         # several pose workers share a frame's people: their poses are joined first
         self.shares = SharedPoses(producers_of(self.layout, "poses"), max_pending=8)
+        self.keypoint_shares = SharedKeypoints(producers_of(self.layout, "keypoints"), max_pending=8)
+        self.calibration = calib   # the keypoints are triangulated with it
         self.due = 0.0
         self.shown_frame = -1
         self.failed = False
@@ -124,6 +128,9 @@ class Viewer(Worker):
         if isinstance(msg, Poses):
             for joined in self.shares.add(msg):
                 self.assembly.add("poses", joined, now)
+        elif isinstance(msg, Keypoints):
+            for joined in self.keypoint_shares.add(msg):
+                self.assembly.add("keypoints", joined, now)
         else:
             self.assembly.add("voxels" if isinstance(msg, Voxels) else "tracks", msg, now)
         self._draw()
@@ -144,6 +151,8 @@ class Viewer(Worker):
         now = time.monotonic()
         for joined in self.shares.flush():
             self.assembly.add("poses", joined, now)
+        for joined in self.keypoint_shares.flush():
+            self.assembly.add("keypoints", joined, now)
         self._draw(force=True)
         self._status(ended=True)
 
@@ -171,12 +180,26 @@ class Viewer(Worker):
             voxels=None if vox is None else (vox.centres() if vox.indices is not None and len(vox.indices) else (),
                                               vox.colours, vox.voxel_size, vox.surface),
             tracks=None if tracks is None else (tracks.ids, tracks.positions),
-            poses=None if poses is None else (poses.tracks, poses.joints, poses.active))
+            poses=None if poses is None else (poses.tracks, poses.joints, poses.active),
+            keypoints=self._triangulated(parts.get("keypoints")))
         self._send(cmds)
         if frame != self.shown_frame:
             self.shown_frame = frame
             first = min(parts.values(), key=lambda m: m.stamp or float("inf"))
             self.ledger.emitted(frame, first.stamp)
+
+    def _triangulated(self, msg: Keypoints | None):
+        """``[(track, points (K, 3))]``: each track's keypoints triangulated from two or
+        more cameras (:func:`app.keypoints.fusion.triangulate`); None without keypoints or
+        calibration."""
+        if msg is None or self.calibration is None:
+            return None
+        from app.keypoints.fusion import frame_keypoints, triangulate
+        out = []
+        for tid, person in sorted(frame_keypoints([msg], self.calibration).items()):
+            points, found = triangulate(person)
+            out.append((tid, points[found]))
+        return out
 
     def _status(self, ended: bool = False) -> None:
         self._next_status = time.monotonic() + STATUS_PERIOD_S

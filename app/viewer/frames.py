@@ -20,7 +20,7 @@ from __future__ import annotations
 
 __all__ = ["FrameAssembly", "KINDS"]
 
-KINDS = ("voxels", "tracks", "poses")
+KINDS = ("voxels", "tracks", "poses", "keypoints")
 
 
 class FrameAssembly:

@@ -19,7 +19,8 @@ from app.viewer import three
 from app.viewer.geometry import (box_edges, default_view, ellipsoid_rings, floor_grid, frustum_segments, point_size,
                                  rgb_floats, skeleton_mesh, subsample, track_colour, translation)
 
-__all__ = ["Scene", "skeleton_object", "ROOT", "LIVE", "STATUS", "BACKGROUND", "ROOM_COLOUR", "FRUSTUM_COLOUR", "INACTIVE_COLOUR"]
+__all__ = ["Scene", "skeleton_object", "ROOT", "LIVE", "STATUS", "BACKGROUND", "ROOM_COLOUR", "FRUSTUM_COLOUR", "INACTIVE_COLOUR",
+           "KEYPOINT_COLOUR"]
 
 ROOT = "/meshcat/smartroom"
 LIVE = f"{ROOT}/live"           # the frame on show (voxels, tracks, skeletons): one group, replaced whole
@@ -34,6 +35,7 @@ GRID_COLOUR = (0.30, 0.32, 0.36)
 ROOM_COLOUR = (0.62, 0.66, 0.72)
 FRUSTUM_COLOUR = (1.00, 1.00, 1.00)
 INACTIVE_COLOUR = (0.45, 0.45, 0.45)
+KEYPOINT_COLOUR = (1.0, 0.85, 0.1)  # the keypoint cue's triangulated joints (yellow), over the skeletons
 LABEL_HEIGHT = 0.045           # labels keep their size on screen: ~3 % of the view's height
 
 
@@ -120,11 +122,12 @@ class Scene:
         return self.room()
 
     # -- every frame ------------------------------------------------------------------
-    def frame(self, frame: int, voxels=None, tracks=None, poses=None, epoch: int = 0) -> list[dict]:
+    def frame(self, frame: int, voxels=None, tracks=None, poses=None, epoch: int = 0, keypoints=None) -> list[dict]:
         """One frame on show: its voxels, tracks and skeletons as one group object at
         :data:`LIVE`, which replaces the frame shown before in one step (the page never
         shows parts of two frames). ``voxels``: ``(centres, colours, voxel_size, surface)``;
-        ``tracks``: ``(ids, positions)``; ``poses``: ``(tracks, joints, active)``; None:
+        ``tracks``: ``(ids, positions)``; ``poses``: ``(tracks, joints, active)``;
+        ``keypoints``: ``[(track, points (K, 3))]``, the keypoint cue's joints triangulated; None:
         the frame has no such part (nothing of it is drawn). The group's ``userData`` says
         which frame it is and which parts it has."""
         children, parts = [], []
@@ -145,6 +148,12 @@ class Scene:
             parts.append("poses")
             children += self._skeletons(*poses)
         self.shown_poses = set(int(t) for t in np.asarray(poses[0]).reshape(-1)) if poses is not None else set()
+        if keypoints is not None:
+            parts.append("keypoints")
+            children += [three.named(three.points(np.asarray(pts, float).reshape(-1, 3), colour=KEYPOINT_COLOUR,
+                                                  size=0.05, on_top=True, render_order=6,
+                                                  user_data={"track": int(tid)}), f"keypoints {int(tid)}")
+                         for tid, pts in keypoints if len(pts)]
         info = {"frame": int(frame), "epoch": int(epoch), "parts": parts}
         return [three.set_object(LIVE, three.group(children, "frame", user_data=info))]
 
