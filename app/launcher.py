@@ -135,7 +135,10 @@ class Launcher:
                 continue
             self.procs.append(_Proc(name=w.name, source=not cls.CONSUMES))
         self.progress = progress
+        # written from zenoh's thread, read from the run's: replaced whole, never changed in place
         self.stats: dict[str, Stats] = {}
+        self._members = {w.name for w in self.layout.workers}   # only the layout's workers report
+        self.foreign_reports = 0
         self.eos: dict[str, EndOfStream] = {}
         self.reasons: list[str] = []
         self.input_error: str | None = None
@@ -191,13 +194,16 @@ class Launcher:
         name = Keys.last(sample.key_expr)
         if getattr(msg, "worker", None) != name:
             return
+        if name not in self._members:   # any process may publish on the bus: not a stage of this run
+            self.foreign_reports += 1
+            return
         if isinstance(msg, EndOfStream):
             self.eos[name] = msg
         elif isinstance(msg, Stats):
             old = self.stats.get(name)
             if old is not None and old.final and not msg.final and old.figures.get("pid") == msg.figures.get("pid"):
                 return
-            self.stats[name] = msg
+            self.stats = {**self.stats, name: msg}   # a new table: readers iterate the one they took
             if self.progress is not None:
                 self.progress.update(self.stats)
 

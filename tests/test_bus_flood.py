@@ -1,0 +1,65 @@
+"""Any process may publish on the bus (issue 25): stats under names that are not workers of
+the layout, sent as fast as one process can while a real run goes on, change nothing
+in the run or in its stats.json (the launcher once crashed on them: its stats table was
+read and written from two threads)."""
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+import yaml
+
+from app.bus import BusConfig, Keys, free_port, open_session
+from app.messages import Stats
+from tests.conftest import ROOT
+from tests.runs import write_layout
+
+pytestmark = pytest.mark.integration
+
+
+def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
+    session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
+    keys = Keys(room)
+    try:
+        publishers = {}
+        i = 0
+        while not stop.is_set():
+            name = f"zz{i % 400}"   # a few hundred stages that do not exist, over and over
+            pub = publishers.get(name) or publishers.setdefault(name, session.declare_publisher(keys.stats(name)))
+            pub.put(Stats(worker=name, stage="zz", figures={"frames_in": 10 ** 6, "frames_out": 10 ** 6,
+                                                               "fps": 25.0, "order": 9}).to_bytes())
+            i += 1
+        sent.append(i)
+    finally:
+        session.close()
+
+
+def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tmp_path):
+    port = free_port()
+    path = write_layout(tmp_path / "layout.yaml")
+    doc = yaml.safe_load(path.read_text())
+    doc["bus"]["listen"] = [f"tcp/127.0.0.1:{port}"]
+    path.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
+                            str(long_recording), "--headless", "--out", str(out)], cwd=ROOT,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    stop, sent = threading.Event(), []
+    flood = threading.Thread(target=_flood, args=(port, doc["room"], stop, sent), daemon=True)
+    try:
+        time.sleep(2.0)        # the hub is up
+        flood.start()
+        _, err = run.communicate(timeout=240)
+    finally:
+        stop.set()
+        flood.join(timeout=30)
+        if run.poll() is None:
+            run.kill()
+    assert sent and sent[0] > 1000, sent
+    assert run.returncode == 0, err[-2000:]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"] and stats["frames"] == 250
+    assert not [n for n in (*stats["workers"], *stats["stages"]) if n.startswith("zz")]
+    assert stats["stages"]["recorder"]["frames_in"] == 250
