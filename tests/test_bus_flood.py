@@ -1,7 +1,7 @@
 """Any process may publish on the bus (issue 25): stats under names that are not workers of
 the layout, sent as fast as one process can while a real run goes on, change nothing
-in the run or in its stats.json (the launcher once crashed on them: its stats table was
-read and written from two threads)."""
+in the run, in its stats.json or on the monitor (the launcher once crashed on them: its
+stats table was read and written from two threads)."""
 import json
 import subprocess
 import sys
@@ -38,20 +38,21 @@ def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
 
 def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tmp_path):
     port = free_port()
-    path = write_layout(tmp_path / "layout.yaml")
+    path = write_layout(tmp_path / "layout.yaml", extra_workers=[{"name": "monitor", "kind": "monitor",
+                                                                   "params": {"line_period": 2.0}}])
     doc = yaml.safe_load(path.read_text())
     doc["bus"]["listen"] = [f"tcp/127.0.0.1:{port}"]
     path.write_text(yaml.safe_dump(doc))
     out = tmp_path / "out"
     run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
                             str(long_recording), "--headless", "--out", str(out)], cwd=ROOT,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stop, sent = threading.Event(), []
     flood = threading.Thread(target=_flood, args=(port, doc["room"], stop, sent), daemon=True)
     try:
         time.sleep(2.0)        # the hub is up
         flood.start()
-        _, err = run.communicate(timeout=240)
+        shown, err = run.communicate(timeout=240)
     finally:
         stop.set()
         flood.join(timeout=30)
@@ -63,3 +64,7 @@ def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tm
     assert stats["complete"] and stats["frames"] == 250
     assert not [n for n in (*stats["workers"], *stats["stages"]) if n.startswith("zz")]
     assert stats["stages"]["recorder"]["frames_in"] == 250
+    # the monitor (a worker that reads every stats message) refused them and never showed them
+    assert stats["workers"]["monitor"]["bad_messages"] > 100
+    lines = [ln for ln in (shown + err).splitlines() if "not a worker of the layout" not in ln]   # (refusals)
+    assert any("rtf=" in ln for ln in lines) and not any("zz" in ln for ln in lines)   # real stages only

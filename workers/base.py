@@ -166,6 +166,7 @@ class Worker(Restarts):
         self.inbox = Inbox(depth, on_drop=self.ledger.dropped_item)
         self.rejections = Rejections(self.log)
         self.windows: dict[str, FrameWindow] = {}
+        self._members = {w.name for w in layout.workers}   # the names whose stats and ends count
         self.stop_event = threading.Event()
         self.session = None
         self.alive: set[str] = set()         # workers whose liveliness token is on the bus
@@ -454,6 +455,9 @@ class Worker(Restarts):
             msg.validate()
         except MessageError as exc:
             self.reject(key, "malformed", str(exc))
+            return
+        if isinstance(msg, (EndOfStream, Stats)) and msg.worker not in self._members:
+            self.reject(key, "not a worker of the layout")   # any process may publish on the bus
             return
         if isinstance(msg, EndOfStream):
             if "stats" in self.CONSUMES:  # the end of stream carries the worker's final figures
