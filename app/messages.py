@@ -36,6 +36,7 @@ _MAX_META = 1 << 20
 _MAX_NAME = 64          # camera and worker names
 _MAX_SIDE = 16384       # image and mask sides (pixels)
 _MAX_VOXELS = 1 << 27   # grid cells of one voxel grid
+MAX_GRID_CELLS = _MAX_VOXELS   # (the reconstruction refuses a room whose grid would be larger)
 
 #: The contract's 15 joint names, in the order used by every array of joints.
 JOINTS = (

@@ -70,6 +70,31 @@ def _matrix(value, shape, where: str, field: str) -> np.ndarray:
     return m
 
 
+#: Physical ranges (issue 25: fx = 1e300, k1 = 1e30 or a camera 1,000 km away used to
+#: load and give an empty run; a 10 km room a MemoryError): fields of view of a lens,
+#: distortion coefficients of a real lens model, the farthest a camera of the room may
+#: stand from it, the largest room.
+FOV_RANGE = (1.0, 179.0)        # degrees, horizontal and vertical
+MAX_RADIAL = 1e3                # |k1|, |k2|, |k3|
+MAX_TANGENTIAL = 1.0            # |p1|, |p2|
+MAX_CAMERA_DISTANCE = 1000.0    # m from the room's box
+MAX_ROOM_SIDE = 200.0           # m
+
+
+def _physical(cam: Camera, where: str) -> None:
+    """One-line errors for values no lens or camera has (:data:`FOV_RANGE`, ...)."""
+    for axis, f, side in (("horizontal", cam.K[0, 0], cam.width), ("vertical", cam.K[1, 1], cam.height)):
+        fov = 2 * np.degrees(np.arctan(side / (2 * f)))
+        if not FOV_RANGE[0] <= fov <= FOV_RANGE[1]:
+            raise CalibrationError(f"{where}: K gives a {fov:.3g} degree {axis} field of view over {side} pixels "
+                                   f"(a lens gives {FOV_RANGE[0]:g}-{FOV_RANGE[1]:g}: a focal length in mm, or K of "
+                                   "another image size?)")
+    k, p = cam.dist[[0, 1, 4]], cam.dist[[2, 3]]
+    if np.abs(k).max() > MAX_RADIAL or np.abs(p).max() > MAX_TANGENTIAL:
+        raise CalibrationError(f"{where}: dist {', '.join(f'{v:.3g}' for v in cam.dist)} is no lens's distortion "
+                               f"(|k1|, |k2|, |k3| <= {MAX_RADIAL:g}, |p1|, |p2| <= {MAX_TANGENTIAL:g})")
+
+
 def _camera(entry, index: int, path: str) -> Camera:
     if not isinstance(entry, dict):
         raise CalibrationError(f"{path}: cameras[{index}] is not a mapping")
@@ -99,7 +124,9 @@ def _camera(entry, index: int, path: str) -> Camera:
     if abs(det - 1.0) > 1e-3 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3):
         raise CalibrationError(f"{where}: R is not a rotation (det {det:.1f})")
     t = _matrix(entry["t"], (3,), where, "t")
-    return Camera(name=name, width=width, height=height, K=K, dist=dist, R=R, t=t)
+    cam = Camera(name=name, width=width, height=height, K=K, dist=dist, R=R, t=t)
+    _physical(cam, where)
+    return cam
 
 
 def parse_calibration(data, path: str = "calibration.yaml") -> Calibration:
@@ -116,10 +143,19 @@ def parse_calibration(data, path: str = "calibration.yaml") -> Calibration:
     rmax = _matrix(room["max"], (3,), path, "room.max")
     if not np.all(rmax > rmin):
         raise CalibrationError(f"{path}: room.max must exceed room.min on every axis")
+    if np.any(rmax - rmin > MAX_ROOM_SIDE):
+        size = " x ".join(f"{v:.4g}" for v in rmax - rmin)
+        raise CalibrationError(f"{path}: a room of {size} m (at most {MAX_ROOM_SIDE:g} m a side: "
+                               "room.min and room.max in mm, or for another world?)")
     cams = data.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise CalibrationError(f"{path}: cameras must be a non-empty list")
     cameras = tuple(_camera(c, i, path) for i, c in enumerate(cams))
+    for cam in cameras:
+        away = float(np.linalg.norm(np.maximum(0.0, np.maximum(rmin - cam.centre, cam.centre - rmax))))
+        if away > MAX_CAMERA_DISTANCE:
+            raise CalibrationError(f"{path}: camera {cam.name} stands {away:.4g} m from the room (at most "
+                                   f"{MAX_CAMERA_DISTANCE:g} m: t in mm, or R and t for another world?)")
     names = [c.name for c in cameras]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:

@@ -47,6 +47,13 @@ def test_reflection_is_not_a_rotation(tmp_path):
     (lambda d: d.update(fps=0), "fps must be a positive number"),
     (lambda d: d["room"].update(max=[0, 0, 0]), "room.max must exceed room.min"),
     (lambda d: d.update(cameras=[]), "cameras must be a non-empty list"),
+    # what parses but no lens, camera or room is (issue 25: these loaded and gave empty runs or a MemoryError)
+    (lambda d: d["cameras"][0]["K"][0].__setitem__(0, 1e300), "degree horizontal field of view"),
+    (lambda d: d["cameras"][0]["K"][1].__setitem__(1, 0.01), "degree vertical field of view"),
+    (lambda d: d["cameras"][1].update(dist=[1e30, 0, 0, 0, 0]), "camera cam1: dist 1e+30, 0, 0, 0, 0 is no lens"),
+    (lambda d: d["cameras"][1].update(dist=[0, 0, 5, 0]), "is no lens's distortion"),
+    (lambda d: d["cameras"][2].update(t=[0, 0, 1e6]), "camera cam2 stands"),
+    (lambda d: d["room"].update(max=[1e4, 1e4, 3]), "a room of 1e+04 x 1e+04"),
 ])
 def test_errors_name_the_field(tmp_path, mutate, message):
     d = _doc()
@@ -93,3 +100,22 @@ def test_check_lists_every_problem_at_once(tmp_path):
     assert [c.name for c in checked.cameras] == ["cam2", "cam3", "cam4"] and checked.calibration.fps == 0
     save_calibration(tiny_calibration(3), tmp_path / "ok.yaml")
     assert check_calibration(tmp_path / "ok.yaml").problems == []
+
+
+@pytest.mark.integration
+def test_a_room_too_big_for_the_voxel_grid_is_one_line_and_exit_2(tiny_recording, tmp_path):
+    """150 m x 150 m at 4 cm is 10^9 voxels: the reconstruction says so before it builds
+    tables that do not fit (issue 25: a 10 km room ended in a MemoryError traceback)."""
+    import shutil
+
+    from tests.conftest import smartroom
+
+    rec = tmp_path / "rec"
+    shutil.copytree(tiny_recording, rec)
+    doc = yaml.safe_load((rec / "calibration.yaml").read_text())
+    doc["room"] = {"min": [-70.0, -70.0, 0.0], "max": [80.0, 80.0, 3.0]}
+    (rec / "calibration.yaml").write_text(yaml.safe_dump(doc))
+    r = smartroom("run", "--recording", rec, "--headless", "--no-pace", "--out", tmp_path / "out", timeout=120)
+    assert r.returncode == 2, r.stderr[-2000:]
+    lines = [ln for ln in r.stderr.splitlines() if "cells, more than" in ln]
+    assert lines and "reconstruction: the room (150 x 150 x 3 m) at 4 cm voxels" in lines[0], r.stderr[-2000:]
