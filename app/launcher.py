@@ -137,8 +137,7 @@ class Launcher:
         self.progress = progress
         # written from zenoh's thread, read from the run's: replaced whole, never changed in place
         self.stats: dict[str, Stats] = {}
-        self._members = {w.name for w in self.layout.workers}   # only the layout's workers report
-        self.foreign_reports = 0
+        self._members = self.layout.names   # only the layout's workers report
         self.eos: dict[str, EndOfStream] = {}
         self.reasons: list[str] = []
         self.input_error: str | None = None
@@ -195,7 +194,6 @@ class Launcher:
         if getattr(msg, "worker", None) != name:
             return
         if name not in self._members:   # any process may publish on the bus: not a stage of this run
-            self.foreign_reports += 1
             return
         if isinstance(msg, EndOfStream):
             self.eos[name] = msg

@@ -63,6 +63,11 @@ class Layout:
     path: str = "layout.yaml"
     restarts: dict = field(default_factory=dict)   # the launcher's restart policy (app.config._restarts)
 
+    @property
+    def names(self) -> set[str]:
+        """The names of the layout's workers (the only ones whose stats and ends count)."""
+        return {w.name for w in self.workers}
+
     def worker(self, name: str) -> WorkerSpec:
         for w in self.workers:
             if w.name == name:

@@ -166,7 +166,7 @@ class Worker(Restarts):
         self.inbox = Inbox(depth, on_drop=self.ledger.dropped_item)
         self.rejections = Rejections(self.log)
         self.windows: dict[str, FrameWindow] = {}
-        self._members = {w.name for w in layout.workers}   # the names whose stats and ends count
+        self._members = layout.names   # the names whose stats and ends count
         self.stop_event = threading.Event()
         self.session = None
         self.alive: set[str] = set()         # workers whose liveliness token is on the bus

@@ -25,12 +25,6 @@ from workers.base import Worker
 KEEP_FRAMES = 16
 
 
-def crop_top(z_centroid: float) -> float:
-    """The top of a tracked body (m) for its crop, from its centroid's height: the hull's
-    centroid lies at about half the person's top, standing, sitting or crouching."""
-    return float(np.clip(2.0 * z_centroid, 1.0, 2.2)) + 0.1
-
-
 class KeypointsWorker(Worker):
     KIND = "keypoints"
     ORDER = 5
@@ -102,7 +96,7 @@ class KeypointsWorker(Worker):
             del self.images[f]
 
     def _detect(self, tracks: Tracks, views: dict) -> None:
-        from app.keypoints.detector import person_crop
+        from app.keypoints.detector import crop_top, person_crop
 
         self.done = tracks.frame
         ids = np.asarray(tracks.ids, dtype=np.int64)

@@ -25,6 +25,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import MAX_GRID_CELLS, Mask, Voxels
+from app.reconstruction.grid import VoxelGrid
 from app.reconstruction.reconstructor import PIPELINE_CARVING
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
 from workers.base import Worker
@@ -96,10 +97,11 @@ class Reconstruction(Worker):
         p = self.params
         if not 0.005 <= p["voxel_size"] <= 0.5:
             raise InputError(f"reconstruction: voxel_size {p['voxel_size']} m is outside 0.005 .. 0.5 m")
-        dims = np.ceil((np.asarray(calib.room_max) - np.asarray(calib.room_min)) / p["voxel_size"] - 1e-9)
-        if float(np.prod(dims)) > MAX_GRID_CELLS:   # tables, messages and grids of that size do not fit
-            raise InputError(f"reconstruction: the room ({' x '.join(f'{v:.3g}' for v in dims * p['voxel_size'])} m) at "
-                             f"{p['voxel_size'] * 100:g} cm voxels is {float(np.prod(dims)):.3g} cells, more than "
+        cells = VoxelGrid.from_room(calib.room_min, calib.room_max, p["voxel_size"]).n_voxels
+        if cells > MAX_GRID_CELLS:   # tables, messages and grids of that size do not fit
+            size = np.asarray(calib.room_max) - np.asarray(calib.room_min)
+            raise InputError(f"reconstruction: the room ({' x '.join(f'{v:.3g}' for v in size)} m) at "
+                             f"{p['voxel_size'] * 100:g} cm voxels is {float(cells):.3g} cells, more than "
                              f"{MAX_GRID_CELLS:.3g}: a larger voxel_size, or a smaller room in the calibration")
         mask_sizes, colour_sizes = self._expected_sizes(calib)
         self.status(f"building projection tables at {p['voxel_size'] * 100:g} cm "

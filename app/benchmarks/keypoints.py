@@ -20,9 +20,8 @@ __all__ = ["run", "format_table"]
 
 
 def run(scene: str = "meeting3", frames: int = 100, step: int = 10, seed: int = 0, zenithal: bool = False) -> dict:
-    from app.keypoints.detector import KeypointDetector, person_crop
+    from app.keypoints.detector import KeypointDetector, crop_top, person_crop
     from app.simulation.simulator import Simulator
-    from workers.keypoints import crop_top
 
     det = KeypointDetector(threads=1)
     sim = Simulator(scene, seed=seed, seconds=(frames + 1) / 25.0, zenithal=zenithal)

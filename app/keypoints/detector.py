@@ -33,7 +33,7 @@ import numpy as np
 from app.errors import InputError
 from app.messages import JOINTS
 
-__all__ = ["KeypointsUnavailable", "find_model", "KeypointDetector", "Crop", "person_crop", "to_joints",
+__all__ = ["KeypointsUnavailable", "find_model", "KeypointDetector", "Crop", "person_crop", "crop_top", "to_joints",
            "INSTALL_HINT", "INPUT"]
 
 INPUT = 256                 # the network's square input side (pixels)
@@ -53,6 +53,8 @@ _MAP = np.zeros((len(JOINTS), 33), dtype=np.float64)
 for _j, _name in enumerate(JOINTS):
     for _k in _BLAZEPOSE[_name]:
         _MAP[_j, _k] = 1.0 / len(_BLAZEPOSE[_name])
+#: the first and last landmark of each joint (the same one for a joint of one landmark)
+_ENDS = np.array([(_BLAZEPOSE[n][0], _BLAZEPOSE[n][-1]) for n in JOINTS], dtype=np.int64)
 
 
 class KeypointsUnavailable(InputError):
@@ -91,6 +93,12 @@ class Crop(NamedTuple):
     input pixels; ``side`` its side in image pixels."""
     A: np.ndarray
     side: float
+
+
+def crop_top(z_centroid: float) -> float:
+    """The top of a tracked body (m) for its crop, from its centroid's height: the hull's
+    centroid lies at about half the person's top, standing, sitting or crouching."""
+    return float(np.clip(2.0 * z_centroid, 1.0, 2.2)) + 0.1
 
 
 def person_crop(camera, position, top: float, radius: float = 0.4, margin: float = 1.2,
@@ -142,8 +150,7 @@ def to_joints(landmarks: np.ndarray, score: float) -> np.ndarray:
     out = np.empty((len(JOINTS), 3))
     out[:, :2] = _MAP @ lm[:, :2]
     # a joint made of several landmarks is as sure as its least sure one
-    conf = np.array([min(vis[k] for k in _BLAZEPOSE[name]) for name in JOINTS])
-    out[:, 2] = conf * float(score)
+    out[:, 2] = np.minimum(vis[_ENDS[:, 0]], vis[_ENDS[:, 1]]) * float(score)
     return out
 
 

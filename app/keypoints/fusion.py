@@ -51,6 +51,7 @@ def _joint_parts() -> np.ndarray:
 
 
 JOINT_PART = _joint_parts()
+_ARM_ENDS = [JOINTS.index(n) for n in ("l_elbow", "l_wrist", "r_elbow", "r_wrist")]   # keypoint_hands' joints
 
 
 @dataclass
@@ -86,14 +87,14 @@ def person_keypoints(views) -> PersonKeypoints | None:
 
 
 @njit(cache=True, nogil=True)
-def _penalty(joints, use, R, t, obs, w, gate, inv2s2, out):
+def _penalty(joints, R, t, obs, w, gate, inv2s2, out):
+    """``out[k] = inv2s2 * sum_j D_j^2`` of :func:`keypoint_penalty` for the joints
+    ``(n, J, 3)`` and their keypoints ``obs (C, J, 2)``, weights ``w (C, J)``."""
     n, J = joints.shape[0], joints.shape[1]
     C = R.shape[0]
     for k in range(n):
         total = 0.0
         for j in range(J):
-            if not use[j]:
-                continue
             num = 0.0
             den = 0.0
             for c in range(C):
@@ -129,9 +130,11 @@ def keypoint_penalty(states: np.ndarray, height: float, person: PersonKeypoints,
         use &= np.asarray(active, dtype=bool)[JOINT_PART]
     if not use.any() or not len(states):
         return out
-    joints = joints_subset(states, height, np.arange(len(JOINTS)))
-    _penalty(joints, use, np.ascontiguousarray(person.R), np.ascontiguousarray(person.t),
-             np.ascontiguousarray(person.obs), np.ascontiguousarray(w), float(gate), 0.5 / (sigma * sigma), out)
+    idx = np.flatnonzero(use)   # the model's joints are computed for these only (a partial model: the torso's)
+    joints = joints_subset(states, height, idx)
+    _penalty(joints, np.ascontiguousarray(person.R),
+             np.ascontiguousarray(person.t), np.ascontiguousarray(person.obs[:, idx]), np.ascontiguousarray(w[:, idx]),
+             float(gate), 0.5 / (sigma * sigma), out)
     return out
 
 
@@ -156,14 +159,15 @@ def _ray_errors(point, R, t, obs):
 
 
 def triangulate(person: PersonKeypoints, min_conf: float = 0.5, gate: float = 0.15,
-                min_views: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                min_views: int = 2, joints=None) -> tuple[np.ndarray, np.ndarray]:
     """``(points (15, 3), found (15,))``: each joint from the cameras that saw it with at
     least ``min_conf``; while the worst view is farther than ``gate`` (m, at the point's
     depth) from the point, it is dropped and the point solved again; found where at least
-    ``min_views`` views agree."""
+    ``min_views`` views agree. ``joints``: the indices to solve (default all; the others
+    are not found)."""
     points = np.zeros((len(JOINTS), 3))
     found = np.zeros(len(JOINTS), dtype=bool)
-    for j in range(len(JOINTS)):
+    for j in range(len(JOINTS)) if joints is None else joints:
         views = np.flatnonzero(person.conf[:, j] >= min_conf)
         while len(views) >= min_views:
             R, t, o, w = person.R[views], person.t[views], person.obs[views, j], person.conf[views, j]
@@ -186,7 +190,7 @@ def keypoint_hands(person: PersonKeypoints, height: float, min_conf: float = 0.5
     puts the wrist half a hand, 0.04 H, nearer the shoulder than the hand it aims at):
     each triangulated wrist moved 0.04 H on along its forearm (from the triangulated
     elbow; straight down without one). Empty when no wrist was triangulated."""
-    points, found = triangulate(person, min_conf)
+    points, found = triangulate(person, min_conf, joints=_ARM_ENDS)
     out = []
     for side in ("l", "r"):
         w, e = JOINTS.index(f"{side}_wrist"), JOINTS.index(f"{side}_elbow")
