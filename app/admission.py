@@ -10,6 +10,12 @@ here the frame numbers are checked against the stream they claim to belong to:
   silent while it starts again; a forger beside a running source is not followed),
   and then at once if it carries on the frame numbers (a recording resumed), or
   after :data:`EPOCH_CONFIRM` distinct nearby frames if it starts anew (a live camera).
+  Live (``follow_ahead``), a stream whose current frames went quiet here for
+  :data:`EPOCH_QUIET_S` and come back far ahead of the window (this worker stood still:
+  stopped, swapped out, restarted late) is followed the same way, after
+  :data:`EPOCH_CONFIRM` nearby frames: the stage jumps to the newest frames and the
+  frames it skipped are counted (:attr:`FrameWindow.skipped`). Offline nothing is
+  skipped, so nothing jumps.
 - :class:`Rejections` counts what was turned away per key and reason and logs it at
   most once per :data:`LOG_PERIOD_S` per reason, with the count since the last line.
 
@@ -31,9 +37,11 @@ class FrameWindow:
     """The epoch and newest frame of one stream; :meth:`admit` says whether a frame
     belongs to it (None) or why not (a short reason)."""
 
-    def __init__(self, window: int = WINDOW, clock=time.monotonic):
+    def __init__(self, window: int = WINDOW, clock=time.monotonic, follow_ahead: bool = False):
         self.window = int(window)
         self.clock = clock
+        self.follow_ahead = follow_ahead
+        self.skipped = 0              # frames jumped over (follow_ahead)
         self.epoch: int | None = None
         self.newest = -1
         self.last_seen = 0.0          # when the current epoch last delivered
@@ -48,6 +56,8 @@ class FrameWindow:
             return None
         if epoch == self.epoch:
             if abs(frame - self.newest) > self.window:
+                if self.follow_ahead and frame > self.newest and now - self.last_seen >= EPOCH_QUIET_S:
+                    return self._follow(epoch, frame, now, "frame outside the window")
                 return "frame outside the window"
             self.newest = max(self.newest, frame)
             self.last_seen = now
@@ -59,16 +69,22 @@ class FrameWindow:
         if abs(frame - self.newest) <= self.window:   # the same numbering carried on
             self.epoch, self.newest, self.last_seen, self._candidate = epoch, frame, now, None
             return None
-        # a new numbering: follow it once it is confirmed by nearby frames
+        return self._follow(epoch, frame, now, "unconfirmed epoch")   # a new numbering
+
+    def _follow(self, epoch: int, frame: int, now: float, refusal: str) -> str | None:
+        """Follow ``epoch`` from ``frame`` on once :data:`EPOCH_CONFIRM` distinct nearby
+        frames confirm it; until then the refusal."""
         cand_epoch, frames = self._candidate if self._candidate and self._candidate[0] == epoch else (epoch, set())
         if frames and min(abs(frame - f) for f in frames) > self.window:
             frames = set()
         frames.add(frame)
         self._candidate = (cand_epoch, frames)
-        if len(frames) >= EPOCH_CONFIRM:
-            self.epoch, self.newest, self.last_seen, self._candidate = epoch, max(frames), now, None
-            return None
-        return "unconfirmed epoch"
+        if len(frames) < EPOCH_CONFIRM:
+            return refusal
+        if epoch == self.epoch:   # the same stream, far ahead: what lies between is skipped
+            self.skipped += max(0, frame - self.newest - 1)
+        self.epoch, self.newest, self.last_seen, self._candidate = epoch, max(frames), now, None
+        return None
 
     def state(self) -> dict:
         return {"epoch": self.epoch, "newest": self.newest}

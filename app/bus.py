@@ -128,6 +128,9 @@ class Keys:
     def ack(self, worker: str = "*") -> str:
         return f"{self.root}/ack/{worker}"
 
+    def heartbeat(self, worker: str = "*") -> str:
+        return f"{self.root}/heartbeat/{worker}"
+
     def alive(self, worker: str = "*") -> str:
         return f"{self.root}/alive/{worker}"
 

@@ -18,6 +18,10 @@ the workers' stats, keeps ``<out>/stats.json`` up to date, and waits:
   the run is stopped and reported incomplete. A stage that crashes once an hour
   runs forever (the budget refills). Its counters carry on (``<out>/state/``).
 
+A worker that is still running but **hung** (no heartbeat, or a loop that has not turned
+with input waiting, for ``restarts: watchdog_s`` seconds: :mod:`app.watchdog`) is killed
+and restarted the same way, its failure recorded with the reason ``hung``.
+
 Stopping: the first Ctrl-C / SIGTERM asks the sources to end their input (SIGINT),
 so the end of stream flows through every stage and every file is completed; workers
 still running ``STOP_GRACE_S`` later get SIGTERM (no end of stream: their files stay
@@ -47,8 +51,9 @@ from pathlib import Path
 from app.bus import BusConfig, Keys, Publisher, decode_sample, free_port, open_session
 from app.config import Layout
 from app.files import write_json
-from app.messages import EndOfStream, MessageError, Stats
+from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
+from app.watchdog import DEFAULT_WATCHDOG_S, Watchdog
 from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
@@ -71,6 +76,7 @@ class RestartPolicy:
     storm: int = 5
     first_delay_s: float = 0.25
     max_delay_s: float = 8.0
+    watchdog_s: float = DEFAULT_WATCHDOG_S   # a hung worker (app.watchdog) is restarted after this
 
     def delay(self, recent: int) -> float:
         return min(self.max_delay_s, self.first_delay_s * 2.0 ** max(0, recent - 1))
@@ -88,6 +94,7 @@ class _Proc:
     done: bool = False
     ended: bool = False          # exited 0: its input ended
     failures: list = field(default_factory=list)
+    hung: str | None = None      # why the watchdog killed it (its exit is then a restart, reason "hung")
 
 
 def _hub_bus(bus: BusConfig) -> BusConfig:
@@ -145,6 +152,7 @@ class Launcher:
         self._stop_level = 0        # 0 running, 1 sources asked to end, 2 SIGTERM sent, 3 SIGKILL sent
         self._stop_time: float | None = None
         self._lock = threading.Lock()
+        self.watchdog = Watchdog(self.policy.watchdog_s)   # fed from zenoh's thread under _lock
         self._last_stats_write = 0.0
         self._reserve = self.out / ".reserve"
         self.started = time.time()   # the run's start-up is counted from here (stats.json "startup")
@@ -160,6 +168,9 @@ class Launcher:
                                                         ENDED_ENV: json.dumps(ended)})
         p.popen = subprocess.Popen(cmd, env=env, start_new_session=True)
         p.rc = None
+        p.hung = None
+        with self._lock:
+            self.watchdog.started(p.name, p.popen.pid)
 
     def _signal(self, p: _Proc, sig) -> None:
         if p.popen is not None and p.popen.poll() is None:
@@ -195,7 +206,10 @@ class Launcher:
             return
         if name not in self._members:   # any process may publish on the bus: not a stage of this run
             return
-        if isinstance(msg, EndOfStream):
+        if isinstance(msg, Heartbeat):
+            with self._lock:
+                self.watchdog.beat(msg)   # only the pid the launcher started counts
+        elif isinstance(msg, EndOfStream):
             self.eos[name] = msg
         elif isinstance(msg, Stats):
             old = self.stats.get(name)
@@ -213,7 +227,8 @@ class Launcher:
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
-                session.declare_subscriber(keys.eos(), self._on_control)]
+                session.declare_subscriber(keys.eos(), self._on_control),
+                session.declare_subscriber(keys.heartbeat(), self._on_control)]
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}
         self._make_reserve()
         try:
@@ -239,7 +254,11 @@ class Launcher:
         return 0 if self.complete else 1
 
     def _crashed(self, p: _Proc, rc: int, now: float) -> None:
-        p.failures.append({"time": round(time.time(), 3), "exit": rc})
+        failure = {"time": round(time.time(), 3), "exit": rc}
+        if p.hung:
+            failure["reason"] = "hung"
+            failure["detail"] = p.hung
+        p.failures.append(failure)
         p.crashes.append(now)
         while p.crashes and now - p.crashes[0] > self.policy.window_s:
             p.crashes.popleft()
@@ -256,7 +275,8 @@ class Launcher:
         p.restarts += 1
         p.next_start = now + delay
         p.popen = None
-        print(f"smartroom: worker {p.name} died ({_exit_text(rc)}); restarting in {delay:.2g} s "
+        what = f"was hung ({p.hung}) and was killed" if p.hung else f"died ({_exit_text(rc)})"
+        print(f"smartroom: worker {p.name} {what}; restarting in {delay:.2g} s "
               f"(restart {p.restarts}; {recent} in the last {self.policy.window_s:.0f} s)", file=sys.stderr)
 
     def _wait(self) -> None:
@@ -275,8 +295,12 @@ class Launcher:
                     continue
                 rc = p.popen.poll()
                 if rc is None:
+                    if self._stop_level == 0 and p.hung is None:
+                        self._watch(p)
                     continue
                 p.rc = rc
+                with self._lock:
+                    self.watchdog.stopped(p.name)
                 if rc == 0:
                     p.done = p.ended = True
                 elif rc == EXIT_INPUT:
@@ -310,6 +334,20 @@ class Launcher:
                 self._write_stats(final=False)
                 self._repeat_ends()
             time.sleep(0.05)
+
+    def _watch(self, p: _Proc) -> None:
+        """Kill a hung worker (SIGKILL: a stopped process takes nothing else); its exit is
+        then restarted like a crash, the reason "hung" recorded."""
+        with self._lock:
+            why = self.watchdog.hung(p.name)
+        if why is None:
+            return
+        p.hung = why
+        print(f"smartroom: worker {p.name} is hung: {why}; killing it", file=sys.stderr)
+        try:
+            p.popen.kill()
+        except ProcessLookupError:
+            pass
 
     def _repeat_ends(self) -> None:
         """Say again, once a second, the end of stream of every worker that has ended
@@ -368,10 +406,24 @@ class Launcher:
         return [f"{name}: {s.figures['stream_error']}" for name, s in self.stats.items()
                 if isinstance(s.figures.get("stream_error"), str)]
 
+    def _frames_passed(self) -> list[str]:
+        """Offline, frames the source sent on past a stage that was away too long (nothing
+        may be lost on a recording: the run is incomplete)."""
+        if not self.layout.run.recording:
+            return []
+        out = []
+        for name, s in sorted(self.stats.items()):
+            passed = s.figures.get("went_on_without")
+            for worker, n in sorted(passed.items()) if isinstance(passed, dict) else ():
+                if isinstance(n, int) and n > 0:
+                    out.append(f"{worker}: {n} frames went on without it (away longer than the source "
+                               f"waits, {name} said)")
+        return out
+
     @property
     def complete(self) -> bool:
         return (not self.reasons and not self.input_error and not self._stream_errors()
-                and all(p.ended for p in self.procs))
+                and not self._frames_passed() and all(p.ended for p in self.procs))
 
     def _make_reserve(self) -> None:
         try:
@@ -391,9 +443,12 @@ class Launcher:
         for name, s in out["stages"].items():
             s["restarts"] = restarts.get(name, s.get("restarts", 0))
             s["frames_expected"] = expected
+            if final and expected is not None and not s["final"]:
+                # it never sent its final figures (killed, hung): what it never received is missing
+                s["frames_missing"] = max(s["frames_missing"], expected - s["frames_in"])
         out["workers"] = {name: st["figures"] for name, st in stages.items()}
         if final:
-            reasons = list(self.reasons) + self._stream_errors()
+            reasons = list(self.reasons) + self._stream_errors() + self._frames_passed()
             if self.input_error:
                 reasons.append(self.input_error)
             for p in self.procs:
@@ -409,6 +464,10 @@ class Launcher:
         else:
             out["complete"] = False
             out["running"] = True
+        with self._lock:
+            silences = self.watchdog.silences()
+        if silences:   # a stage that stood still for a while (stopped, swapped out) and went on
+            out["silences"] = silences
         return out
 
     def _write_stats(self, final: bool) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = [
     "MessageError", "Message", "Frame", "Mask", "Voxels", "Tracks", "Poses", "Stats",
-    "EndOfStream", "Ack", "encode", "decode", "JOINTS", "Blobs",
+    "EndOfStream", "Ack", "encode", "decode", "JOINTS", "Blobs", "Keypoints", "Heartbeat",
 ]
 
 MAGIC = b"SRM"
@@ -491,6 +491,31 @@ class Ack(Message):
         super().validate()
         _name(self, "worker")
         _int(self, "out", -1)
+
+
+@dataclass(kw_only=True)
+class Heartbeat(Message):
+    """A worker's pulse, once a second from a thread of its own (the launcher's watchdog,
+    :mod:`app.watchdog`): the process lives; ``loop_age`` seconds since its loop last
+    turned, ``pending`` messages waiting in its inbox, ``busy`` what it does that may
+    legitimately hold the loop ("setup", "compiling"; empty otherwise), ``pid`` its process."""
+
+    TYPE_ID: ClassVar[int] = 12
+    worker: str = ""
+    pid: int = 0
+    loop_age: float = 0.0
+    pending: int = 0
+    busy: str = ""
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+        _int(self, "pid", 0, 1 << 31)
+        _int(self, "pending", 0, 1 << 31)
+        if not isinstance(self.loop_age, float) or not 0 <= self.loop_age < 1e9:
+            raise MessageError("Heartbeat: loop_age is not a number of seconds")
+        if self.busy not in ("", "setup", "compiling"):
+            raise MessageError(f"Heartbeat: busy {str(self.busy)[:20]!r} is not '', 'setup' or 'compiling'")
 
 
 @dataclass(kw_only=True)

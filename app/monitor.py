@@ -5,6 +5,11 @@ seconds), drops, CPU use and how busy the stage is (fraction of wall time spent
 processing). For the pipeline: the real-time factor ``RTF = fps / f_R`` (thesis
 Eq. 4.27) of its deepest stage against the target 1.0, and the bottleneck: the
 stage that is busiest (a stage near 100 % busy cannot take more frames).
+
+A stage whose stats stopped coming (for :data:`SILENT_S`, not ended, not compiling) is
+**silent**: its last rates are not repeated as if it still ran (they count as 0, so the
+RTF says the pipeline stands still and the silent stage is the bottleneck), and every
+output (the table, the journal lines) says so.
 """
 from __future__ import annotations
 
@@ -54,6 +59,11 @@ class StageRow:
     def processing(self) -> bool:
         return self.order is not None
 
+    @property
+    def silent(self) -> bool:
+        """No stats for :data:`SILENT_S` from a stage that has not ended and is not compiling."""
+        return not self.final and self.age_s > SILENT_S and self.compiled_ago_s != 0.0
+
 
 class PipelineView:
     """Latest stats of every worker, and what they say about the pipeline."""
@@ -95,6 +105,8 @@ class PipelineView:
                 cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
                 final=final, age_s=now - seen, frames_out=int(f.get("frames_out", 0) or 0),
                 compiled_ago_s=_compiled_ago(f, now)))
+            if rows[-1].silent:   # its last figures are old: it does not run at them now
+                rows[-1].fps_in = rows[-1].fps_out = 0.0
         rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
         return rows
 
@@ -130,7 +142,7 @@ class PipelineView:
         procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
         if not procs:
             return None
-        return max(procs, key=lambda r: (round(r.busy, 2), r.dropped, -r.fps_out))
+        return max(procs, key=lambda r: (r.silent, round(r.busy, 2), r.dropped, -r.fps_out))
 
     def tracks(self) -> int | None:
         """People tracked now (the ``tracks`` figure of the tracking stage), or None."""
@@ -176,6 +188,9 @@ class PipelineView:
         head = [f"rtf={rtf:.2f}" if rtf is not None else "rtf=-", f"verdict={self.verdict(rtf).split(' ')[0]}"]
         if neck is not None and rtf is not None:
             head.append(f"bottleneck={neck.name} busy={neck.busy:.2f}")
+        silent = [r for r in rows if r.silent and (r.processing or r.frames_out)]
+        if silent:
+            head.append("silent=" + ",".join(f"{r.name}:{r.age_s:.0f}s" for r in silent))
         if self.tracks() is not None:
             head.append(f"tracks={self.tracks()}")
         late = self.late_views()
@@ -191,7 +206,8 @@ class PipelineView:
         starting workers are doing, in words."""
         rows = self.rows()
         lines = [f"{r.name}: in={r.fps_in:.1f} out={r.fps_out:.1f} p50={r.latency_p50:.0f}ms p95={r.latency_p95:.0f}ms "
-                 f"drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f}% busy={r.busy:.2f}" for r in self.shown(rows)]
+                 f"drop={r.dropped} lost={r.missing} cpu={r.cpu:.0f}% busy={r.busy:.2f}"
+                 + (f" silent={r.age_s:.0f}s" if r.silent else "") for r in self.shown(rows)]
         return lines + (self.statuses() if self.rtf(rows) is None else [])
 
     def table(self) -> str:
@@ -204,6 +220,8 @@ class PipelineView:
             if rtf is not None else f"smartroom monitor | {fps} | waiting for stages"
         lines = [head]
         lines += [f"view  {u}" for u in self.urls()]
+        lines += [f"SILENT: {r.name}: no stats for {r.age_s:.0f} s" for r in rows
+                  if r.silent and (r.processing or r.frames_out)]
         if neck is not None and rtf is not None:
             lines.append(f"bottleneck: {neck.name} (busy {100 * neck.busy:.0f}%, {neck.dropped} frames dropped)")
         tracked = self.tracks()
@@ -218,7 +236,7 @@ class PipelineView:
                 f"{'cpu %':>7}{'busy':>6}")
         lines += ["", cols, "-" * len(cols)]
         for r in self.shown(rows):
-            mark = " (ended)" if r.final else (f" (silent {r.age_s:.0f} s)" if r.age_s > SILENT_S else "")
+            mark = " (ended)" if r.final else (f" (silent {r.age_s:.0f} s)" if r.silent else "")
             lines.append(f"{r.name:<16}{r.fps_in:>8.1f}{r.fps_out:>9.1f}{r.latency_p50:>7.1f}ms{r.latency_p95:>7.1f}ms"
                          f"{r.dropped:>7}{r.missing:>6}{r.cpu:>7.0f}{100 * r.busy:>5.0f}%{mark}")
         return "\n".join(lines)

@@ -28,6 +28,28 @@ def test_window_rejects_far_frames_and_follows_the_stream():
     assert w.admit(0, 40) is None and w.newest == 50   # late but near: the stage decides
 
 
+def test_live_a_stage_that_stood_still_jumps_to_the_newest_frames_and_counts_the_skipped():
+    """Live (follow_ahead), after this worker stood still for longer than the window: the
+    stream's frames come back far ahead; two nearby ones confirm the jump, the frames in
+    between are counted as skipped. Offline, and beside a running stream, nothing jumps."""
+    clock = Clock()
+    w = FrameWindow(window=100, clock=clock, follow_ahead=True)
+    assert w.admit(0, 10) is None
+    clock.t += 0.04
+    assert w.admit(0, 500) == "frame outside the window"    # a forger beside the running stream
+    assert w.admit(0, 501) == "frame outside the window"
+    assert w.admit(0, 11) is None
+    clock.t += 100.0                                        # SIGSTOP, SIGCONT 100 s later
+    assert w.admit(0, 2511) == "frame outside the window"
+    assert w.admit(0, 2512) is None and w.newest == 2512
+    assert w.skipped == 2500
+    assert w.admit(0, 2513) is None
+    offline = FrameWindow(window=100, clock=clock)
+    assert offline.admit(0, 10) is None
+    clock.t += 100.0
+    assert offline.admit(0, 2511) == offline.admit(0, 2512) == "frame outside the window"
+
+
 def test_new_epoch_is_followed_only_after_the_old_one_went_quiet():
     clock = Clock()
     w = FrameWindow(window=100, clock=clock)

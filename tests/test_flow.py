@@ -127,3 +127,17 @@ def test_a_stop_request_ends_the_wait_at_once():
     fc = control(stall=5.0, clock=Clock(step=1.0))
     fc.start(0, EVERYONE)
     assert fc.wait(5, lambda: EVERYONE, lambda: True) < 5.0
+
+
+def test_frames_that_go_on_without_a_stage_are_counted():
+    """A stage away longer than MISSING_WAIT_S: the frames sent past it are counted per
+    worker (the launcher reports such an offline run incomplete)."""
+    clock = Clock(step=5.0)
+    fc = control(window=100, stall=MISSING_WAIT_S + 60, clock=clock)
+    fc.start(0, EVERYONE)
+    fc.wait(0, lambda: EVERYONE, lambda: False)
+    assert fc.went_without == {}
+    away = EVERYONE - {"recorder"}
+    assert fc.wait(1, lambda: away, lambda: False) >= MISSING_WAIT_S   # waited for, then on without it
+    fc.wait(2, lambda: away, lambda: False)
+    assert fc.went_without == {"recorder": 2}

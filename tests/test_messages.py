@@ -5,8 +5,8 @@ import struct
 import numpy as np
 import pytest
 
-from app.messages import (JOINTS, EndOfStream, Frame, Mask, MessageError, Poses, Stats, Tracks, Voxels,
-                          decode, encode)
+from app.messages import (JOINTS, EndOfStream, Frame, Heartbeat, Mask, MessageError, Poses, Stats, Tracks,
+                          Voxels, decode, encode)
 
 
 def _samples():
@@ -24,6 +24,7 @@ def _samples():
               active=np.ones((1, len(JOINTS)), bool)),
         Stats(frame=12, worker="seg", stage="segmentation", figures={"frames_in": 3, "latency_ms": {"p50": 1.0}}),
         EndOfStream(frame=13, worker="grabber", stage="grabber", frames=50, fps=25.0, figures={"frames_out": 50}),
+        Heartbeat(stamp=2.0, worker="pose", pid=4321, loop_age=0.25, pending=3, busy="compiling"),
     ]
 
 
@@ -42,6 +43,17 @@ def test_round_trip(msg):
             np.testing.assert_array_equal(a, b)
             assert b.dtype == np.asarray(a).dtype
             assert not b.flags.owndata and not b.flags.writeable  # a view of the payload, no copy
+
+
+@pytest.mark.parametrize("change", [{"worker": "a/b"}, {"pid": -1}, {"pending": -2}, {"loop_age": float("nan")},
+                                    {"loop_age": -1.0}, {"busy": "asleep"}])
+def test_bad_heartbeats_are_refused(change):
+    hb = Heartbeat(stamp=2.0, worker="pose", pid=4321, loop_age=0.25, pending=3)
+    hb.validate()
+    for k, v in change.items():
+        setattr(hb, k, v)
+    with pytest.raises(MessageError):
+        decode(encode(hb)).validate()
 
 
 def test_mask_unpacks_to_the_same_mask():

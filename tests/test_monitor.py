@@ -48,6 +48,31 @@ def test_view_waits_until_every_stage_has_put_out_a_frame():
     assert view.line().startswith("rtf=0.04 verdict=behind bottleneck=slow")
 
 
+def test_a_silent_stage_is_shown_silent_in_every_output_and_not_at_its_old_rate():
+    """A stage whose stats stopped (stopped with SIGSTOP, hung) is not repeated at its last
+    13.5 fps: the RTF drops to 0, it is the bottleneck, and the line, the stage lines and
+    the table say it is silent; a stage compiling kernels is not silent."""
+    clock = [1000.0]
+    view = PipelineView(clock=lambda: clock[0])
+    view.update(_stats("grabber", 0, 25.0, 0.1, fps_recording=25.0))
+    view.update(_stats("segmentation", 1, 25.0, 0.4))
+    view.update(_stats("pose", 2, 13.5, 0.9, frames_out=300))
+    assert view.rtf() == pytest.approx(0.54)
+    clock[0] += 12.0
+    view.update(_stats("grabber", 0, 25.0, 0.1, fps_recording=25.0))
+    view.update(_stats("segmentation", 1, 25.0, 0.4))
+    assert view.rtf() == 0.0
+    assert view.bottleneck().name == "pose"
+    assert "silent=pose:12s" in view.line()
+    assert any(ln.startswith("pose:") and "silent=12s" in ln for ln in view.stage_lines())
+    assert "SILENT: pose: no stats for 12 s" in view.table() and "(silent 12 s)" in view.table()
+    view.update(_stats("pose", 2, 0.0, 0.0, compiling=True))
+    clock[0] += 12.0
+    view.update(_stats("grabber", 0, 25.0, 0.1, fps_recording=25.0))
+    view.update(_stats("segmentation", 1, 25.0, 0.4))
+    assert "silent" not in view.line() and "SILENT" not in view.table()
+
+
 def test_journal_lines_are_short():
     """Not on a terminal (the systemd journal): a short line for the pipeline and one per
     stage, not one line of a thousand characters."""

@@ -45,13 +45,14 @@ from app.bus import Keys, Publisher, decode_sample, open_session
 from app.compiles import CompileClock
 from app.files import write_json
 from app.layout import Layout, WorkerSpec   # the layout's types, not its loader (which imports the workers)
-from app.messages import Ack, EndOfStream, Message, MessageError, Stats
+from app.messages import Ack, EndOfStream, Heartbeat, Message, MessageError, Stats
 from app.stats import StageLedger
 from workers.restarts import Restarts
 
 __all__ = ["Worker", "Inbox", "configure_logging", "FILE_ONLY", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
+HEARTBEAT_PERIOD_S = 1.0   # a heartbeat from the worker's own thread (the launcher's watchdog, app.watchdog)
 STATE_PERIOD_S = 0.5
 END_GRACE_S = 0.1      # quiet time after the upstream left the bus (its data came before it left)
 EOS_CONFIRM_S = 10.0     # an end of stream counts when its sender leaves the bus within this time (a loaded
@@ -180,6 +181,8 @@ class Worker(Restarts):
         self._token = None
         self._last_stats = 0.0
         self._last_state = 0.0
+        self._turned = time.monotonic()       # when the loop last turned (the heartbeat says how long ago)
+        self._phase = "setup"                 # "setup" until the loop starts (the heartbeat's busy)
         self._idle = 0.0
         self._epoch = 0                      # epoch of the input being handled (outputs inherit it)
         self._epoch_seen = False
@@ -398,6 +401,23 @@ class Worker(Restarts):
         for signum in list(self.early_signals):   # received while the worker loaded
             stop(signum, None)
 
+    def _start_heartbeat(self) -> None:
+        """Say once a second, from a thread of its own, that the process lives and how long
+        ago its loop turned (:class:`~app.messages.Heartbeat`, the launcher's watchdog)."""
+        pub = Publisher(self.session, self.keys.heartbeat(self.name), droppable=True)
+        pid = os.getpid()
+
+        def beat():
+            while not self.stop_event.wait(HEARTBEAT_PERIOD_S):
+                busy = self._phase or ("compiling" if self.compiles.compiling else "")
+                try:
+                    pub.put(Heartbeat(frame=-1, stamp=time.time(), worker=self.name, pid=pid,
+                                      loop_age=max(0.0, time.monotonic() - self._turned),
+                                      pending=self.inbox.pending(), busy=busy))
+                except Exception:  # noqa: BLE001 - the session is closing: the loop ends anyway
+                    return
+        threading.Thread(target=beat, daemon=True, name="heartbeat").start()
+
     def _watch_launcher(self) -> None:
         """A worker started by a launcher exits when that launcher is gone (no orphans)."""
         pid = os.environ.get(LAUNCHER_PID_ENV)
@@ -519,9 +539,13 @@ class Worker(Restarts):
             self.reject(key, "camera does not match its key", str(camera)[:40])
             return None
         window = self.windows.get(key)
-        if window is None:
-            window = self.windows[key] = FrameWindow()
+        if window is None:   # live, a stage that stood still jumps to the newest frames
+            window = self.windows[key] = FrameWindow(follow_ahead=not self.lossless)
+        skipped = window.skipped
         reason = window.admit(msg.epoch, msg.frame) or self.admit(key, msg)
+        if window.skipped > skipped:
+            self.log.warning("fell behind on %s: jumped to frame %d, %d frames skipped", self.keys.relative(key),
+                             msg.frame, window.skipped - skipped)
         if reason:
             self.reject(key, reason, f"frame {msg.frame}, epoch {msg.epoch}")
             return None
@@ -537,6 +561,8 @@ class Worker(Restarts):
         figures["resent"] = self.resent
         figures["repeats_skipped"] = self.repeats_skipped
         figures["rejected"] = self.rejections.figures()
+        if any(w.skipped for w in self.windows.values()):   # live: jumped to the newest after standing still
+            figures["frames_skipped"] = max(w.skipped for w in self.windows.values())
         figures.update(self.compiles.figures())
         if self.setup_s is not None:
             figures["setup_s"] = round(self.setup_s, 3)
@@ -586,6 +612,7 @@ class Worker(Restarts):
     def _loop_filter(self) -> None:
         self._quiet_since = None
         while not self.stopping:
+            self._turned = time.monotonic()
             item = self.inbox.get(timeout=0.05)
             if item is not None:
                 key, sample = item
@@ -619,6 +646,7 @@ class Worker(Restarts):
         if not self.stopping:
             self._source_again()
         while not self.stopping:
+            self._turned = time.monotonic()
             t0 = time.perf_counter()
             self._idle = 0.0
             more = self.produce()
@@ -641,6 +669,7 @@ class Worker(Restarts):
         self._watch_launcher()
         self.compiles.install(only_if_loaded=True)   # kernels' modules are imported with the kind
         self.session = open_session(self.layout.bus.for_worker(), mode="client")
+        self._start_heartbeat()
         try:
             self._wait_for = set(self.upstream())
             self._seed_ended()
@@ -666,6 +695,7 @@ class Worker(Restarts):
                 self._ack = Publisher(self.session, self.keys.ack(self.name), droppable=False)
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name))
             self.log.info("ready (%s)", ", ".join(self.subscriptions()) or "source")
+            self._turned, self._phase = time.monotonic(), ""
             if self.is_source:
                 self._loop_source()
             else:

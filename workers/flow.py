@@ -16,7 +16,9 @@ once the pipeline has room for it. The rules, in the order they are applied:
 4. **A stage that is away pauses the stream.** A worker that has left the bus (crashed,
    being restarted by the launcher) is waited for, at most :data:`MISSING_WAIT_S`, so no
    frame goes past it; sinks that keep results (the recorder) are waited for the same
-   way although they acknowledge nothing.
+   way although they acknowledge nothing. Frames that do go on without it (rules 4 and
+   5) are counted per worker (:attr:`FlowControl.went_without`, the source's
+   ``went_on_without`` figure): the launcher reports such an offline run incomplete.
 5. **Back from a crash: catch up first.** Once it is back, new frames are held
    :data:`RESUME_HOLD_S` (the workers before it send it again what was in flight to it,
    :mod:`workers.restarts`) and until it has caught up, at most another
@@ -72,6 +74,7 @@ class FlowControl:
         self._missing_since: dict[str, float] = {}
         self._back_since: dict[str, float] = {}   # workers back from a crash, catching up
         self._hold_until = 0.0
+        self.went_without: dict[str, int] = {}   # worker -> frames that went on without it
 
     # -- what arrives --------------------------------------------------------------
     def start(self, index: int, alive: set[str]) -> None:
@@ -119,6 +122,8 @@ class FlowControl:
                     self.log.warning("%s has not caught up %.0f s after its restart; going on without the "
                                      "frames it missed", n, MISSING_WAIT_S)
                 del self._back_since[n]
+                lacks = max(0, self.required(n, need) - self.acks.get(n, -1))
+                self.went_without[n] = self.went_without.get(n, 0) + lacks
                 for m in self.stages:
                     self.acks[m] = max(self.acks.get(m, -1), index - 1)
                     self.outs[m] = max(self.outs.get(m, -1), index - 1)
@@ -145,8 +150,12 @@ class FlowControl:
         with self.cond:
             while not stopping():
                 now = self.clock()
-                waiting = self.blockers(index, set(alive()), now)
+                here = set(alive())
+                waiting = self.blockers(index, here, now)
                 if not waiting:
+                    for n in self.stages + self.keepers:   # away longer than MISSING_WAIT_S
+                        if n not in here:
+                            self.went_without[n] = self.went_without.get(n, 0) + 1
                     break
                 if now - t0 >= self.stall_timeout_s:
                     raise Stalled(self.stall_reason(index, waiting, now - t0))

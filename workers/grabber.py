@@ -173,6 +173,9 @@ class Grabber(Worker):
                 figures["stream_error"] = source.failure   # the stream ended, but not as it should
         if getattr(self, "lost", None):
             figures["views_lost"] = dict(self.lost)
+        flow = getattr(self, "flow", None)
+        if flow is not None and flow.control.went_without:   # offline frames sent past a stage that was away
+            figures["went_on_without"] = dict(flow.control.went_without)
         return figures
 
     def close(self) -> None:

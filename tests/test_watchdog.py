@@ -1,0 +1,163 @@
+"""Hung workers (issue 25): the watchdog's verdicts (pure, a fake clock), and real runs in
+which a stage is stopped with SIGSTOP (its process and liveliness still there, its loop
+standing still): the launcher kills and restarts it within ``watchdog_s`` + 2 s, says
+"hung" in stats.json, and the run completes with every frame (offline) or delivers
+again (live)."""
+import os
+import signal
+import time
+
+import pytest
+
+from app.messages import Heartbeat
+from app.watchdog import Watchdog
+from tests.conftest import start_smartroom
+from tests.runs import (STAGES, any_pid, assert_counts_add_up, stats_of, voxel_frames, wait_for, worker_pid,
+                        write_layout, running)
+from tests.synthetic import write_tiny_recording
+
+
+class Clock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def beat(name="pose", pid=10, loop_age=0.0, pending=0, busy=""):
+    return Heartbeat(frame=-1, stamp=0.0, worker=name, pid=pid, loop_age=float(loop_age), pending=pending, busy=busy)
+
+
+def test_a_process_without_heartbeats_is_hung_after_watchdog_s():
+    clock = Clock()
+    dog = Watchdog(10.0, clock=clock)
+    dog.started("pose", 10)
+    clock.t += 9.0
+    assert dog.hung("pose") is None                      # still starting: given watchdog_s
+    assert dog.beat(beat(loop_age=0.1))
+    clock.t += 9.9
+    assert dog.hung("pose") is None
+    clock.t += 0.2
+    assert "no heartbeat for 10 s" in dog.hung("pose")   # SIGSTOP: the whole process stands still
+    dog.stopped("pose")
+    assert dog.hung("pose") is None                       # gone: nothing to watch
+
+
+def test_a_loop_standing_still_with_input_waiting_is_hung_unless_busy():
+    clock = Clock()
+    dog = Watchdog(10.0, clock=clock)
+    dog.started("pose", 10)
+    dog.beat(beat(loop_age=11.0, pending=0))
+    assert dog.hung("pose") is None                       # idle: nothing waits for it
+    dog.beat(beat(loop_age=11.0, pending=3, busy="compiling"))
+    assert dog.hung("pose") is None                       # a first run's kernels
+    dog.beat(beat(loop_age=11.0, pending=3, busy="setup"))
+    assert dog.hung("pose") is None
+    dog.beat(beat(loop_age=9.0, pending=3))
+    assert dog.hung("pose") is None
+    clock.t += 1.5                                        # its last heartbeat said 9 s, 1.5 s ago
+    assert "not turned for 10 s with 3 messages waiting" in dog.hung("pose")
+
+
+def test_heartbeats_of_another_process_do_not_count():
+    clock = Clock()
+    dog = Watchdog(10.0, clock=clock)
+    dog.started("pose", 10)
+    assert not dog.beat(beat(pid=11))                     # an earlier incarnation, or a forger
+    assert not dog.beat(beat(name="stranger", pid=10))
+    clock.t += 10.5
+    assert dog.hung("pose") is not None
+    dog.started("pose", 12)                               # restarted: a fresh start
+    assert dog.hung("pose") is None
+
+
+@pytest.mark.integration
+def test_a_stage_stopped_offline_is_restarted_and_the_run_completes(tmp_path):
+    """SIGSTOP of the reconstruction on a recording: killed within watchdog_s + 2 s, restarted
+    (reason "hung"), and the run completes with every frame once."""
+    rec = write_tiny_recording(tmp_path / "rec", frames=250)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"watchdog_s": 4})
+    proc = start_smartroom("run", "--recording", rec, "--headless", "--layout", layout, "--out", out)
+    try:
+        pid = wait_for(lambda: worker_pid(out, "reconstruction"), timeout=60)
+        assert pid, "reconstruction never reported"
+        time.sleep(0.5)
+        os.kill(pid, signal.SIGSTOP)
+        t0 = time.monotonic()
+        assert wait_for(lambda: not running(pid), timeout=15, period=0.1), "the stopped worker was never killed"
+        killed_after = time.monotonic() - t0
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except (ProcessLookupError, TypeError):
+            pass
+    print("killed after", round(killed_after, 2), "s")
+    assert killed_after <= 4 + 2
+    assert "reconstruction is hung" in err
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    failures = s["restarts"]["reconstruction"]["failures"]
+    assert [f.get("reason") for f in failures] == ["hung"] and failures[0]["exit"] == -9
+    assert s["stages"]["reconstruction"]["restarts"] == 1
+    assert_counts_add_up(s, 250)
+    assert [f for f, _ in voxel_frames(out / "voxels.bin")] == list(range(250))
+    for name in (*STAGES, "recorder"):
+        assert s["stages"][name]["frames_out"] == 250, (name, s["stages"][name])
+
+
+@pytest.mark.integration
+def test_a_stage_stopped_live_is_restarted_and_delivers_again(tmp_path):
+    """Live cameras: the segmentation stopped for good is killed and restarted, and frames
+    flow to the end again (the stages after it jump to the newest frames)."""
+    a = write_tiny_recording(tmp_path / "a", frames=600)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"watchdog_s": 3})
+    proc = start_smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}",
+                           "--live", f"cam1={a / 'videos' / 'cam1.avi'}", "--calibration", a / "calibration.yaml",
+                           "--headless", "--layout", layout, "--frames", 400, "--out", out)
+    try:
+        pid = wait_for(lambda: worker_pid(out, "segmentation"), timeout=60)
+        assert pid, "segmentation never reported"
+        time.sleep(1.0)
+        os.kill(pid, signal.SIGSTOP)
+        t0 = time.monotonic()
+        assert wait_for(lambda: not running(pid), timeout=15, period=0.1), "the stopped worker was never killed"
+        killed_after = time.monotonic() - t0
+        assert wait_for(lambda: any_pid(out, "segmentation") not in (None, pid), timeout=30)
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except (ProcessLookupError, TypeError):
+            pass
+    assert killed_after <= 3 + 2
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    assert s["restarts"]["segmentation"]["failures"][0]["reason"] == "hung"
+    frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
+    assert frames == sorted(set(frames))
+    # it delivers again after the restart: frames from the last seconds of the run are there
+    assert frames[-1] >= 380, frames[-20:]
+
+
+def test_a_silence_that_ends_without_a_restart_is_kept():
+    clock = Clock()
+    dog = Watchdog(30.0, clock=clock, wall=lambda: 5000.0)
+    dog.started("tracking", 7)
+    dog.beat(beat("tracking", 7))
+    clock.t += 1.0
+    dog.beat(beat("tracking", 7))
+    assert dog.silences() == {}
+    clock.t += 20.0                                       # SIGSTOP 20 s, then SIGCONT
+    assert dog.hung("tracking") is None
+    dog.beat(beat("tracking", 7, loop_age=20.0))
+    assert dog.silences() == {"tracking": [{"until": 5000.0, "s": 20.0}]}
