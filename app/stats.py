@@ -11,7 +11,9 @@ Definitions (CONTRACT §2, extended):
 - ``frames_missing``: produced by the source but never received here (known at the
   end of the stream), so ``frames_in + frames_missing`` is the source's frame count;
 - latency: wall-clock time from the frame's capture to the stage's output (over the
-  last ``RECENT`` outputs while running, over all of them in the final figures).
+  last ``RECENT`` outputs while running, over all of them in the final figures, up to
+  the last :data:`KEPT_MS` to 2 x :data:`KEPT_MS`: a ledger's memory and the cost of saving it
+  do not grow with the days a room runs, see :class:`FrameSet`).
 """
 from __future__ import annotations
 
@@ -26,6 +28,9 @@ __all__ = ["StageLedger", "FrameSet", "summarise", "steady_fps", "percentiles"]
 
 WINDOW_S = 2.0
 RECENT = 5000   # outputs (~3 min at 25 fps) behind the running latency percentiles
+HORIZON = 1024  # frame numbers a ledger keeps one by one (older ones are folded into counts)
+KEPT_MS = 1 << 20   # latencies and processing times kept for the final percentiles (~11 h at 25 fps)
+MAX_ABSENT = 64     # absent frames remembered below a frame set's folded base
 
 
 def percentiles(values_ms) -> dict:
@@ -39,45 +44,118 @@ def percentiles(values_ms) -> dict:
 
 
 class FrameSet:
-    """A growable bitmap of frame indices (cheap for hours of frames)."""
+    """A growable bitmap of frame indices (cheap for hours of frames).
 
-    def __init__(self):
-        self.bits = bytearray()
+    With a ``horizon`` (a worker's ledger, :data:`HORIZON`) only the newest frame numbers
+    are kept one by one, between ``horizon`` and 1.5 x ``horizon`` of them: older ones are
+    folded into :attr:`folded` (how many of them were in the set) and the first
+    :data:`MAX_ABSENT` absent ones are remembered. Its size, and so the cost of saving it
+    (:meth:`state`), stays the same after an hour and after a month of frames; a frame
+    below the folded base counts as present (nothing that old comes again but a forgery).
+    """
+
+    def __init__(self, horizon: int | None = None):
+        self.bits = bytearray()      # bits[k]: frame base + k
         self.count = 0
+        self.base = 0
+        self.folded = 0              # members below base
+        self.absent: list[int] = []  # the first non-members below base (at most MAX_ABSENT)
+        self.horizon = horizon
 
     def add(self, i: int) -> bool:
-        if i < 0:
+        if i < self.base or i < 0:
             return False
-        if i >= len(self.bits):
-            self.bits.extend(b"\0" * max(i + 1 - len(self.bits), len(self.bits), 1024))
-        if self.bits[i]:
+        k = i - self.base
+        if k >= len(self.bits):
+            self.bits.extend(b"\0" * max(k + 1 - len(self.bits), len(self.bits), 1024))
+        if self.bits[k]:
             return False
-        self.bits[i] = 1
+        self.bits[k] = 1
         self.count += 1
+        if self.horizon and k >= self.horizon + self.horizon // 2:
+            self._fold(i - self.horizon)
         return True
 
+    def _fold(self, base: int) -> None:
+        """Forget the frames below ``base`` one by one (their count and first gaps stay)."""
+        n = base - self.base
+        if n <= 0:
+            return
+        head = bytes(self.bits[:n]).ljust(n, b"\0")
+        members = head.count(1)
+        if len(self.absent) < MAX_ABSENT and members < n:
+            gaps = np.flatnonzero(np.frombuffer(head, dtype=np.uint8) == 0)[:MAX_ABSENT - len(self.absent)]
+            self.absent += (gaps + self.base).tolist()
+        self.folded += members
+        del self.bits[:n]
+        self.base = base
+
     def __contains__(self, i: int) -> bool:
-        return 0 <= i < len(self.bits) and bool(self.bits[i])
+        if i < self.base:
+            return i >= 0 and i not in self.absent
+        k = i - self.base
+        return k < len(self.bits) and bool(self.bits[k])
 
     def __len__(self) -> int:
         return self.count
 
+    @property
+    def end(self) -> int:
+        """One past the largest frame number the bitmap covers."""
+        return self.base + len(self.bits)
+
+    def missing(self, first: int, stop: int, limit: int = 50) -> list[int]:
+        """The first ``limit`` frame numbers in ``[first, stop)`` that are not in the set."""
+        out = [i for i in self.absent if first <= i < stop][:limit]
+        lo, hi = max(first, self.base), min(stop, self.end)
+        if len(out) < limit and hi > lo:
+            bits = np.frombuffer(bytes(self.bits[lo - self.base:hi - self.base]), dtype=np.uint8)
+            out += (np.flatnonzero(bits == 0)[:limit - len(out)] + lo).tolist()
+        start = max(first, self.end)
+        out += list(range(start, min(stop, start + limit - len(out))))
+        return out[:limit]
+
     def count_below(self, i: int) -> int:
-        return self.bits[:max(0, i)].count(1)
+        return self.folded + self.bits[:max(0, i - self.base)].count(1)
 
     def ranges(self) -> list[list[int]]:
-        """The set as ``[[start, stop), ...]`` runs (compact: frames come in runs)."""
+        """The kept frames as ``[[start, stop), ...]`` runs (compact: frames come in runs)."""
         a = np.frombuffer(bytes(self.bits), dtype=np.uint8).astype(np.int8)
         if not a.size:
             return []
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], a, [0]))))
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], a, [0])))) + self.base
         return edges.reshape(-1, 2).tolist()
 
+    def state(self):
+        """What :meth:`from_state` takes back: the runs alone while nothing is folded (the
+        older form), else ``{"base", "folded", "absent", "ranges"}``."""
+        if not self.base:
+            return self.ranges()
+        return {"base": self.base, "folded": self.folded, "absent": list(self.absent), "ranges": self.ranges()}
+
     @classmethod
-    def from_ranges(cls, ranges) -> "FrameSet":
+    def from_state(cls, state, horizon: int | None = None) -> "FrameSet":
+        if not isinstance(state, dict):
+            s = cls.from_ranges(state)
+            s.horizon = horizon
+            return s
+        s = cls.from_ranges(state.get("ranges"), base=state.get("base"))
+        s.horizon = horizon
+        folded = state.get("folded")
+        s.folded = folded if isinstance(folded, int) and 0 <= folded <= s.base else 0
+        absent = state.get("absent")
+        s.absent = [i for i in absent if isinstance(i, int) and 0 <= i < s.base][:MAX_ABSENT] \
+            if isinstance(absent, list) else []
+        s.count += s.folded
+        return s
+
+    @classmethod
+    def from_ranges(cls, ranges, base=None) -> "FrameSet":
         s = cls()
+        s.base = base if isinstance(base, int) and 0 <= base <= (1 << 40) else 0
         for start, stop in ranges or []:
-            if 0 <= start < stop <= (1 << 40):
+            if isinstance(start, int) and isinstance(stop, int) and s.base <= start < stop <= (1 << 40):
+                start, stop = start - s.base, stop - s.base
                 if stop > len(s.bits):
                     s.bits.extend(b"\0" * (stop - len(s.bits)))
                 s.bits[start:stop] = b"\1" * (stop - start)
@@ -92,8 +170,8 @@ class StageLedger:
         self.clock = clock
         #: per frame ``[capture stamp, first received, first output]`` when tracing (benchmarks)
         self.trace: dict[int, list] | None = {} if trace else None
-        self.seen = FrameSet()
-        self.done = FrameSet()
+        self.seen = FrameSet(HORIZON)
+        self.done = FrameSet(HORIZON)
         self.items_in = 0
         self.items_out = 0
         self.items_dropped = 0
@@ -143,6 +221,8 @@ class StageLedger:
                 self.journal("o", frame)
             lat = (now - stamp) * 1e3 if stamp else 0.0
             self.latency_ms.append(lat)
+            if len(self.latency_ms) > 2 * KEPT_MS:   # memory flat however long the room runs
+                del self.latency_ms[:KEPT_MS]
             if self.trace is not None:
                 self.trace.setdefault(frame, [stamp, now, None])[2] = now
             self._events.append((now, "out", lat))
@@ -157,6 +237,8 @@ class StageLedger:
             self.process_ms[-1] += seconds * 1e3
         else:
             self.process_ms.append(seconds * 1e3)
+            if len(self.process_ms) > 2 * KEPT_MS:
+                del self.process_ms[:KEPT_MS]
             self._proc_frame = frame
 
     def dropped_item(self, n: int = 1) -> None:
@@ -166,7 +248,7 @@ class StageLedger:
     def state(self) -> dict:
         """What a restarted incarnation of the worker carries on from (counts and the
         frames seen and done; latencies start afresh)."""
-        return {"seen": self.seen.ranges(), "done": self.done.ranges(), "items_in": self.items_in,
+        return {"seen": self.seen.state(), "done": self.done.state(), "items_in": self.items_in,
                 "items_out": self.items_out, "items_dropped": self.items_dropped,
                 "bad_messages": self.bad_messages, "last_frame": self.last_frame,
                 "newest_out": self.newest_out, "first_stamp": self.first_stamp, "first_emit": self.first_emit,
@@ -176,8 +258,8 @@ class StageLedger:
     def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
         """Take over an earlier incarnation's :meth:`state` and the frames its journal
         recorded after that state was saved."""
-        self.seen = FrameSet.from_ranges(state.get("seen"))
-        self.done = FrameSet.from_ranges(state.get("done"))
+        self.seen = FrameSet.from_state(state.get("seen"), HORIZON)
+        self.done = FrameSet.from_state(state.get("done"), HORIZON)
         for name in ("items_in", "items_out", "items_dropped", "bad_messages", "last_frame", "newest_out"):
             v = state.get(name)
             if isinstance(v, int):
@@ -266,8 +348,9 @@ class StageLedger:
             "host": os.uname().nodename,
         }
         if final:
-            fig["missing_frames"] = [i for i in range(first, first + (expected or 0)) if i not in self.seen][:50]
-            fig["dropped_frames"] = [i for i in range(len(self.seen.bits)) if i in self.seen and i not in self.done][:50]
+            fig["missing_frames"] = self.seen.missing(first, first + (expected or 0))
+            fig["dropped_frames"] = [i for i in range(self.seen.base, self.seen.end)
+                                     if i in self.seen and i not in self.done][:50]
         return fig
 
 
