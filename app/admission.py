@@ -23,6 +23,7 @@ Pure Python, no bus: the worker base owns one of each.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 __all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S"]
@@ -91,36 +92,46 @@ class FrameWindow:
 
 
 class Rejections:
-    """Messages turned away, per ``(key, reason)``, with rate-limited log lines."""
+    """Messages turned away, per ``(key, reason)``, with rate-limited log lines; counted
+    from zenoh's threads and read from the worker's loop (guarded by a lock)."""
 
     def __init__(self, log, clock=time.monotonic):
         self.log = log
         self.clock = clock
         self.counts: dict[tuple[str, str], int] = {}
+        self._per_reason: dict[str, int] = {}
         self._logged: dict[str, tuple[float, int]] = {}   # reason -> (time, count then)
+        self._lock = threading.Lock()
 
     def add(self, key: str, reason: str, detail: str = "") -> None:
         k = (key, reason)
-        self.counts[k] = self.counts.get(k, 0) + 1
         now = self.clock()
-        total = sum(v for (_, r), v in self.counts.items() if r == reason)
-        last = self._logged.get(reason)
-        if last is None or now - last[0] >= LOG_PERIOD_S:
+        with self._lock:
+            self.counts[k] = self.counts.get(k, 0) + 1
+            total = self._per_reason[reason] = self._per_reason.get(reason, 0) + 1
+            last = self._logged.get(reason)
+            say = last is None or now - last[0] >= LOG_PERIOD_S
+            if say:
+                self._logged[reason] = (now, total)
+        if say:
             since = total - (last[1] if last else 0)
             more = f" ({since} such messages since the last report)" if last else ""
             self.log.warning("dropped a message on %s: %s%s%s", key, reason, f": {detail}" if detail else "", more)
-            self._logged[reason] = (now, total)
 
     @property
     def total(self) -> int:
-        return sum(self.counts.values())
+        with self._lock:
+            return sum(self.counts.values())
 
     def figures(self) -> dict:
         """``{"key: reason": count}`` for the stats."""
-        return {f"{k}: {r}": n for (k, r), n in sorted(self.counts.items())}
+        with self._lock:
+            return {f"{k}: {r}": n for (k, r), n in sorted(self.counts.items())}
 
     def restore(self, figures: dict) -> None:
-        for text, n in (figures or {}).items():
-            key, _, reason = str(text).rpartition(": ")
-            if isinstance(n, int):
-                self.counts[(key, reason)] = self.counts.get((key, reason), 0) + n
+        with self._lock:
+            for text, n in (figures or {}).items():
+                key, _, reason = str(text).rpartition(": ")
+                if isinstance(n, int):
+                    self.counts[(key, reason)] = self.counts.get((key, reason), 0) + n
+                    self._per_reason[reason] = self._per_reason.get(reason, 0) + n

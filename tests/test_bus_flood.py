@@ -68,3 +68,56 @@ def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tm
     assert stats["workers"]["monitor"]["bad_messages"] > 100
     lines = [ln for ln in (shown + err).splitlines() if "not a worker of the layout" not in ln]   # (refusals)
     assert any("rtf=" in ln for ln in lines) and not any("zz" in ln for ln in lines)   # real stages only
+
+
+def _junk(port: int, key: str, stop: threading.Event, sent: list) -> None:
+    """Malformed payloads on one data key, as fast as one process can send them."""
+    import zenoh
+
+    session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
+    try:
+        pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        i = 0
+        while not stop.is_set():
+            pub.put(b"SRM" + bytes([2, 2]) + i.to_bytes(4, "little") * 8)
+            i += 1
+        sent.append(i)
+    finally:
+        session.close()
+
+
+def test_junk_on_a_data_key_pushes_no_real_message_out(long_recording, tmp_path):
+    """A flood of junk on the masks of one camera while a recording runs: it is refused
+    before it is queued, so the reconstruction's inbox never drops a real mask, the run
+    completes and every frame is in voxels.bin (junk used to push real messages out of
+    the bounded inbox: frames lost, or a run that waited for them)."""
+    from app.results import iter_voxels
+
+    port = free_port()
+    path = write_layout(tmp_path / "layout.yaml")
+    doc = yaml.safe_load(path.read_text())
+    doc["bus"]["listen"] = [f"tcp/127.0.0.1:{port}"]
+    path.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
+                            str(long_recording), "--headless", "--out", str(out)], cwd=ROOT,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stop, sent = threading.Event(), []
+    flood = threading.Thread(target=_junk, args=(port, Keys(doc["room"]).mask("cam0"), stop, sent), daemon=True)
+    try:
+        time.sleep(2.0)        # the hub is up
+        flood.start()
+        _, err = run.communicate(timeout=240)
+    finally:
+        stop.set()
+        flood.join(timeout=30)
+        if run.poll() is None:
+            run.kill()
+    assert sent and sent[0] > 5000, sent
+    assert run.returncode == 0, err[-2000:]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"]
+    rec = stats["workers"]["reconstruction"]
+    assert rec["items_dropped"] == 0
+    assert sum(n for k, n in rec["rejected"].items() if k.startswith("mask/cam0: malformed")) > 5000
+    assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))

@@ -464,8 +464,12 @@ class Worker(Restarts):
 
     # -- what arrives ------------------------------------------------------------------
     def _on_sample(self, sample) -> None:
+        """Zenoh's thread: a message is decoded and validated before it is queued, so junk
+        is counted and dropped here and never takes the place of a real message in the
+        bounded inbox (a flood of junk on a key used to push real frames out of it)."""
         key = str(sample.key_expr)
-        if not self.inbox.put(key, sample):
+        msg = self._valid(key, sample)
+        if msg is not None and not self.inbox.put(key, msg):
             self.reject(key, "too many keys")
 
     def _on_control(self, sample) -> None:
@@ -524,7 +528,9 @@ class Worker(Restarts):
             self._source_eos = eos
         return True
 
-    def _admit(self, key: str, sample) -> Message | None:
+    def _valid(self, key: str, sample) -> Message | None:
+        """The message of a sample if it decodes, validates, is of a type this stage takes
+        and names the camera of its key; else None (counted)."""
         try:
             msg = decode_sample(sample)
             msg.validate()
@@ -538,6 +544,11 @@ class Worker(Restarts):
         if camera is not None and self.keys.last(key) != camera:
             self.reject(key, "camera does not match its key", str(camera)[:40])
             return None
+        return msg
+
+    def _admit(self, key: str, msg: Message) -> Message | None:
+        """A valid message (:meth:`_valid`) in the frame window of its stream that the
+        stage can use; else None (counted)."""
         window = self.windows.get(key)
         if window is None:   # live, a stage that stood still jumps to the newest frames
             window = self.windows[key] = FrameWindow(follow_ahead=not self.lossless)
@@ -615,8 +626,8 @@ class Worker(Restarts):
             self._turned = time.monotonic()
             item = self.inbox.get(timeout=0.05)
             if item is not None:
-                key, sample = item
-                msg = self._admit(key, sample)
+                key, msg = item
+                msg = self._admit(key, msg)
                 if msg is None or self._repeated(key, msg):
                     continue
                 self._follow_epoch(msg)
