@@ -3,6 +3,7 @@ with one-line errors, and writers that write a temporary ``.partial`` file and r
 it, so a file with its final name is always complete."""
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -11,7 +12,7 @@ import yaml
 
 from app.errors import InputError
 
-__all__ = ["partial_path", "write_atomic", "write_json", "read_yaml", "read_jsonl", "json_entry", "read_json_entry"]
+__all__ = ["partial_path", "write_atomic", "append_record", "write_json", "read_yaml", "read_jsonl", "json_entry", "read_json_entry"]
 
 
 def partial_path(path) -> Path:
@@ -21,13 +22,38 @@ def partial_path(path) -> Path:
 
 
 def write_atomic(path, data: str | bytes) -> None:
-    """Write text or bytes to ``path`` through a ``.partial`` file and a rename."""
+    """Write text or bytes to ``path`` through a ``.partial`` file and a rename; a write
+    that fails (a full disk) leaves ``path`` as it was and no ``.partial`` file."""
     tmp = partial_path(path)
-    if isinstance(data, bytes):
-        tmp.write_bytes(data)
-    else:
-        tmp.write_text(data, encoding="utf-8")
-    os.replace(tmp, path)
+    try:
+        if isinstance(data, bytes):
+            tmp.write_bytes(data)
+        else:
+            tmp.write_text(data, encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def append_record(fh, data: bytes, size: int, path) -> int:
+    """Append one whole record to the unbuffered file ``fh`` (at ``size`` bytes of complete
+    records, ``path``'s); the new size. A write may take fewer bytes than it was given (a
+    disk filling up): the rest is written after it, and when the disk is full the file is
+    cut back to ``size``, so it always ends with its last complete record, and ``OSError``
+    is raised."""
+    view = memoryview(data)
+    try:
+        while view:
+            n = fh.write(view)
+            if not n:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+            view = view[n:]
+    except OSError:
+        os.truncate(path, size)
+        fh.seek(0, os.SEEK_END)
+        raise
+    return size + len(data)
 
 
 def write_json(path, data, indent: int | None = 1) -> None:

@@ -13,7 +13,7 @@ import struct
 from pathlib import Path
 
 from app.errors import InputError
-from app.files import partial_path
+from app.files import append_record, partial_path
 from app.messages import MessageError, Voxels, decode, encode, peek_frame
 from app.stats import FrameSet
 
@@ -52,12 +52,8 @@ class VoxelWriter:
             return False
         payload = encode(msg)
         record = _LEN.pack(len(payload)) + payload
-        try:
-            self.fh.write(record)   # one write: a crash cuts at most this record
-        except OSError:             # e.g. disk full: the file ends with its last complete record
-            os.truncate(self.tmp, self.size)
-            raise
-        self.size += len(record)
+        # a crash cuts at most this record; a full disk leaves the file at its last whole one
+        self.size = append_record(self.fh, record, self.size, self.tmp)
         self.frames.add(msg.frame)
         self.ordered = self.ordered and msg.frame > self.last_frame
         self.last_frame = max(self.last_frame, msg.frame)

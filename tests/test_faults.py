@@ -120,6 +120,51 @@ def test_a_damaged_video_is_an_error_naming_file_and_frame(tmp_path):
     assert len(published) == 125 - lost and all(cams == ("cam0", "cam1") for _, cams in published)
 
 
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 200 KB file system (tmpfs), or the test is skipped where none can be mounted."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_result_files_end_on_a_whole_record_when_the_disk_fills(small_disk):
+    """tracks.jsonl / poses.jsonl lines, voxels.bin records and state files written until
+    the disk is full: every file ends with its last complete record (a write the disk
+    took only part of used to leave a cut-off line), and no empty .partial is left."""
+    from app.files import write_json
+    from app.messages import Voxels
+    from app.results import VoxelWriter
+    from workers.recorder import JsonLinesWriter
+
+    rng = np.random.default_rng(1)
+    lines = JsonLinesWriter(small_disk / "poses.jsonl")
+    voxels = VoxelWriter(small_disk / "voxels.bin")
+    written = {"lines": 0, "voxels": 0}
+    with pytest.raises(OSError):
+        for frame in range(100000):
+            n = int(rng.integers(1, 400))   # records of every size, so one straddles the end of the disk
+            if lines.write(frame, {"frame": frame, "t": frame / 25, "poses": [[0.123456] * 15] * n}):
+                written["lines"] += 1
+            idx = rng.integers(0, 100, (n, 3)).astype(np.uint16)
+            voxels.write(Voxels(frame=frame, voxel_size=0.04, origin=[0, 0, 0], dims=[100, 100, 100], cameras=["c"],
+                                indices=idx, colours=np.zeros((n, 3), np.uint8), surface=np.ones(n, bool)))
+            written["voxels"] += 1
+    kept = [json.loads(ln)["frame"] for ln in (small_disk / "poses.jsonl.partial").read_bytes().splitlines()]
+    assert kept == list(range(written["lines"])) and kept
+    assert (small_disk / "poses.jsonl.partial").read_bytes().endswith(b"\n")
+    frames = [m.frame for m in iter_voxels(small_disk / "voxels.bin.partial")]
+    assert frames == list(range(written["voxels"]))
+    with pytest.raises(OSError):
+        write_json(small_disk / "state.json", {"x": "y" * 1_000_000})
+    assert not (small_disk / "state.json").exists() and not (small_disk / "state.json.partial").exists()
+
+
 def test_a_full_disk_ends_the_run_with_valid_files_and_honest_stats(long_recording, tmp_path):
     mnt = tmp_path / "small"
     mnt.mkdir()

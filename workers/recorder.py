@@ -22,7 +22,7 @@ import os
 from pathlib import Path
 
 from app.errors import InputError
-from app.files import partial_path
+from app.files import append_record, partial_path
 from app.messages import JOINTS, Poses, Tracks, Voxels
 from app.pose_shares import SharedPoses
 from app.results import VoxelWriter
@@ -72,12 +72,8 @@ class JsonLinesWriter:
         if frame in self.frames:
             return False
         line = (json.dumps(record, separators=(",", ":")) + "\n").encode()
-        try:
-            self.fh.write(line)   # one write, straight to the operating system
-        except OSError:           # e.g. disk full: the file ends with its last complete line
-            os.truncate(self.tmp, self.size)
-            raise
-        self.size += len(line)
+        # straight to the operating system; a full disk leaves the file at its last whole line
+        self.size = append_record(self.fh, line, self.size, self.tmp)
         self._note(frame)
         return True
 
