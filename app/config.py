@@ -154,14 +154,16 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
 
 
 RESTART_KEYS = {"window_s": (1.0, 86400.0), "storm": (2, 1000), "first_delay_s": (0.0, 60.0),
-                "max_delay_s": (0.0, 600.0), "watchdog_s": (2.0, 86400.0)}
+                "max_delay_s": (0.0, 600.0), "watchdog_s": (2.0, 86400.0), "peer_timeout_s": (1.0, 30 * 86400.0)}
 
 
 def _restarts(data, path: str) -> dict:
     """The ``restarts`` section: when the launcher restarts a crashed worker (see
     :class:`app.launcher.RestartPolicy`): ``{window_s, storm, first_delay_s, max_delay_s,
-    watchdog_s}`` (``watchdog_s``: a worker whose loop stands still this long is restarted,
-    :mod:`app.watchdog`)."""
+    watchdog_s, peer_timeout_s}`` (``watchdog_s``: a worker whose loop stands still this long
+    is restarted, :mod:`app.watchdog`; ``peer_timeout_s``: how long a launcher waits for the
+    workers of another host, and a worker started by itself for the hub, before the run
+    ends: an outage shorter than that is waited out)."""
     if data is None:
         return {}
     if not isinstance(data, dict):

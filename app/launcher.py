@@ -18,6 +18,13 @@ the workers' stats, keeps ``<out>/stats.json`` up to date, and waits:
   the run is stopped and reported incomplete. A stage that crashes once an hour
   runs forever (the budget refills). Its counters carry on (``<out>/state/``).
 
+Workers of another host (``host:`` in the layout, started there with ``smartroom
+worker``) are followed by their liveliness: when all of a host's workers leave the bus
+the launcher says "link to host H down", waits (a remote source that has not ended its
+stream keeps the run open, however long the outage), says when they are back and keeps
+each outage in ``stats.json`` (``outages``); a host gone for ``restarts: peer_timeout_s``
+(600 s) ends the run, incomplete.
+
 A worker that is still running but **hung** (no heartbeat, or a loop that has not turned
 with input waiting, for ``restarts: watchdog_s`` seconds: :mod:`app.watchdog`) is killed
 and restarted the same way, its failure recorded with the reason ``hung``.
@@ -54,7 +61,7 @@ from app.files import write_json
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
 from app.watchdog import DEFAULT_WATCHDOG_S, Watchdog
-from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV
+from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, HUB_NOTE_S, LAUNCHER_PID_ENV, PEER_TIMEOUT_S
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
 
@@ -77,6 +84,7 @@ class RestartPolicy:
     first_delay_s: float = 0.25
     max_delay_s: float = 8.0
     watchdog_s: float = DEFAULT_WATCHDOG_S   # a hung worker (app.watchdog) is restarted after this
+    peer_timeout_s: float = PEER_TIMEOUT_S   # another host's workers gone this long: the run ends
 
     def delay(self, recent: int) -> float:
         return min(self.max_delay_s, self.first_delay_s * 2.0 ** max(0, recent - 1))
@@ -136,6 +144,19 @@ class Launcher:
         self.layout_path = self.out / "layout.yaml"
         self.layout.save(self.layout_path)
         self.procs: list[_Proc] = []
+        #: workers of other hosts by host, and the sources among them (their end of stream ends the input)
+        self.remote: dict[str, list[str]] = {}
+        self.remote_sources = []
+        for w in self.layout.workers:
+            if not w.local:
+                self.remote.setdefault(w.host, []).append(w.name)
+                if not worker_class(w.kind).CONSUMES:
+                    self.remote_sources.append(w.name)
+        self.alive: set[str] = set()            # workers on the bus (liveliness), from zenoh's thread
+        self.host_seen: dict[str, bool] = {}     # a host whose workers have been on the bus
+        self.host_down: dict[str, float] = {}    # host -> since when none of its workers is on the bus
+        self.outages: list[dict] = []
+        self._host_said: dict[str, float] = {}
         for w in self.layout.workers:
             cls = worker_class(w.kind)
             if not w.local or (cls.DISPLAY and self.layout.run.headless):
@@ -219,6 +240,48 @@ class Launcher:
             if self.progress is not None:
                 self.progress.update(self.stats)
 
+    def _on_alive(self, sample) -> None:
+        import zenoh
+        name = Keys.last(sample.key_expr)
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.alive.discard(name)
+            else:
+                self.alive.add(name)
+
+    def _watch_hosts(self, now: float) -> None:
+        """Say when another host's workers all leave the bus and when they are back; end the
+        run once a host has been gone for ``peer_timeout_s``."""
+        with self._lock:
+            alive = set(self.alive)
+        for host, names in self.remote.items():
+            here = alive & set(names)
+            if here:
+                self.host_seen[host] = True
+                since = self.host_down.pop(host, None)
+                if since is not None and now - since > HUB_NOTE_S:
+                    self.outages.append({"host": host, "until": round(time.time(), 3), "s": round(now - since, 1)})
+                    print(f"smartroom: link to host {host} back after {now - since:.0f} s", file=sys.stderr)
+                continue
+            if not self.host_seen.get(host) or self._ended_remotely(names):
+                continue
+            since = self.host_down.setdefault(host, now)
+            down = now - since
+            if down > HUB_NOTE_S and now - self._host_said.get(host, 0.0) >= 10.0:
+                self._host_said[host] = now
+                print(f"smartroom: link to host {host} down for {down:.0f} s ({', '.join(names)} not on the bus; "
+                      f"waiting up to {self.policy.peer_timeout_s:.0f} s)", file=sys.stderr)
+            if down > self.policy.peer_timeout_s and self._stop_level == 0:
+                reason = (f"host {host} ({', '.join(names)}) gone from the bus for {down:.0f} s "
+                          f"(restarts: peer_timeout_s {self.policy.peer_timeout_s:.0f} s)")
+                self.reasons.append(reason)
+                print(f"smartroom: {reason}; stopping", file=sys.stderr)
+                self.request_stop(hard=True, user=False)
+
+    def _ended_remotely(self, names: list[str]) -> bool:
+        """Every one of these remote workers has sent its end of stream (left, not lost)."""
+        return all(n in self.eos for n in names)
+
     # -- the run ------------------------------------------------------------------
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
@@ -229,6 +292,8 @@ class Launcher:
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
                 session.declare_subscriber(keys.eos(), self._on_control),
                 session.declare_subscriber(keys.heartbeat(), self._on_control)]
+        if self.remote:
+            subs.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}
         self._make_reserve()
         try:
@@ -322,7 +387,11 @@ class Launcher:
             frames = sum(s.figures.get("frames_out", 0) + s.figures.get("frames_in", 0) for s in self.stats.values())
             if frames != last_frames:
                 last_frames, last_progress = frames, now
-            sources_done = all(p.done for p in self.procs if p.source)
+            # a source on another host keeps the run open until its end of stream arrives
+            sources_done = (all(p.done for p in self.procs if p.source)
+                            and all(n in self.eos for n in self.remote_sources))
+            if self.remote:
+                self._watch_hosts(now)
             if sources_done and self._stop_level == 0 and now - last_progress > DRAIN_TIMEOUT_S:
                 stuck = [p.name for p in self.procs if not p.done]
                 reason = f"no progress for {DRAIN_TIMEOUT_S:.0f} s after the sources ended (waiting: {', '.join(stuck)})"
@@ -468,6 +537,10 @@ class Launcher:
             silences = self.watchdog.silences()
         if silences:   # a stage that stood still for a while (stopped, swapped out) and went on
             out["silences"] = silences
+        if self.outages or self.host_down:   # links to other hosts that went down
+            now = time.monotonic()
+            out["outages"] = list(self.outages) + [{"host": h, "down_s": round(now - t, 1)}
+                                                   for h, t in self.host_down.items()]
         return out
 
     def _write_stats(self, final: bool) -> None:

@@ -14,17 +14,20 @@ once the pipeline has room for it. The rules, in the order they are applied:
    stages have put out: one whose upstream gave a frame up (too few cameras, say) is not
    waited for on that frame (:meth:`FlowControl.required`).
 4. **A stage that is away pauses the stream.** A worker that has left the bus (crashed,
-   being restarted by the launcher) is waited for, at most :data:`MISSING_WAIT_S`, so no
-   frame goes past it; sinks that keep results (the recorder) are waited for the same
-   way although they acknowledge nothing. Frames that do go on without it (rules 4 and
-   5) are counted per worker (:attr:`FlowControl.went_without`, the source's
-   ``went_on_without`` figure): the launcher reports such an offline run incomplete.
+   being restarted by the launcher, on a host whose link is down) is waited for until it
+   is back or the wait is a stall (rule 6), so no frame goes past it: an outage shorter
+   than ``stall_timeout_s`` is waited out. Sinks that keep results (the recorder) are
+   waited for the same way although they acknowledge nothing. (Frames used to go on
+   without a worker away for 60 s: a link down for 70 s lost them.)
 5. **Back from a crash: catch up first.** Once it is back, new frames are held
    :data:`RESUME_HOLD_S` (the workers before it send it again what was in flight to it,
    :mod:`workers.restarts`) and until it has caught up, at most another
    :data:`MISSING_WAIT_S` (if its upstream restarted with it, nothing comes again, and the
-   frames it lacks are counted as missing).
-6. **A stall ends the run.** A frame held for ``stall_timeout_s`` by a worker that is on
+   frames it lacks are counted as missing, per worker in :attr:`FlowControl.went_without`,
+   the source's ``went_on_without`` figure: the launcher reports such a run incomplete).
+6. **A stall ends the run.** A frame held for ``stall_timeout_s`` (not counting the time
+   nobody at all is on the bus: this host's link to the hub is down, an outage waited out
+   up to ``restarts: peer_timeout_s``, :mod:`workers.base`) by a worker that is on
    the bus yet finishes nothing (or a worker that never comes on the bus) is a stall: the
    source raises :class:`~app.errors.Stalled` naming the worker and the frame, the launcher
    stops the run (exit 1, ``complete: false``, the reason in ``stats.json``), and the result
@@ -46,7 +49,7 @@ from workers.restarts import REPLAY_DELAY_S
 
 __all__ = ["FlowControl", "SourceFlow", "MISSING_WAIT_S", "RESUME_HOLD_S", "NOTE_PERIOD_S"]
 
-MISSING_WAIT_S = 60.0   # how long a crashed stage is waited for before frames go on without it
+MISSING_WAIT_S = 60.0   # how long a stage back from a crash is waited for to catch up
 RESUME_HOLD_S = 4 * REPLAY_DELAY_S   # new frames wait this long after a worker is back from a crash
 NOTE_PERIOD_S = 10.0    # how often a wait is said in the log
 SENDING_AGAIN = "workers sending frames again"
@@ -133,8 +136,7 @@ class FlowControl:
             else:
                 self._missing_since.setdefault(n, now)
         waiting = [n for n in self.stages if n in alive and self.acks.get(n, -1) < self.required(n, need)]
-        waiting += [n for n in self.stages + self.keepers
-                    if n not in alive and now - self._missing_since[n] < MISSING_WAIT_S]
+        waiting += [n for n in self.stages + self.keepers if n not in alive]
         if now < self._hold_until:
             waiting.append(SENDING_AGAIN)
         return waiting
@@ -145,20 +147,21 @@ class FlowControl:
         once the frame has waited ``stall_timeout_s`` (rule 6)."""
         if not self._started:
             self.start(index, alive())
-        t0 = self.clock()
+        t0 = last = self.clock()
+        held = 0.0   # the stall clock: it stands still while nobody at all is on the bus (the link is down)
         next_note = t0 + NOTE_PERIOD_S
         with self.cond:
             while not stopping():
                 now = self.clock()
                 here = set(alive())
+                if here or not self.stages + self.keepers:
+                    held += now - last
+                last = now
                 waiting = self.blockers(index, here, now)
                 if not waiting:
-                    for n in self.stages + self.keepers:   # away longer than MISSING_WAIT_S
-                        if n not in here:
-                            self.went_without[n] = self.went_without.get(n, 0) + 1
                     break
-                if now - t0 >= self.stall_timeout_s:
-                    raise Stalled(self.stall_reason(index, waiting, now - t0))
+                if held >= self.stall_timeout_s:
+                    raise Stalled(self.stall_reason(index, waiting, held))
                 if now >= next_note and self.log is not None:
                     next_note = now + NOTE_PERIOD_S
                     self.log.warning("frame %d waits for %s to finish frame %d", index, ", ".join(waiting),
