@@ -18,8 +18,15 @@ the workers' stats, keeps ``<out>/stats.json`` up to date, and waits:
   the run is stopped and reported incomplete. A stage that crashes once an hour
   runs forever (the budget refills). Its counters carry on (``<out>/state/``).
 
+**One host's share** (``smartroom run --host H --connect ENDPOINT``, :attr:`Launcher.host`):
+the launcher starts, watches and restarts only the workers the layout places on host
+``H``, opens no hub of its own but connects to the one of the host that runs the hub,
+says which workers of the other hosts it sees on the bus, waits out an outage of its
+link to the hub and stops its workers once the hub has been unreachable for
+``restarts: peer_timeout_s``.
+
 Workers of another host (``host:`` in the layout, started there with ``smartroom
-worker``) are followed by their liveliness: when all of a host's workers leave the bus
+run --host`` or ``smartroom worker``) are followed by their liveliness: when all of a host's workers leave the bus
 the launcher says "link to host H down", waits (a remote source that has not ended its
 stream keeps the run open, however long the outage), says when they are back and keeps
 each outage in ``stats.json`` (``outages``); a host gone for ``restarts: peer_timeout_s``
@@ -57,6 +64,7 @@ from pathlib import Path
 
 from app.bus import BusConfig, Keys, Publisher, decode_sample, free_port, open_session
 from app.config import Layout
+from app.errors import InputError
 from app.files import write_json
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
@@ -115,6 +123,15 @@ def _hub_bus(bus: BusConfig) -> BusConfig:
     return dataclasses.replace(bus, listen=listen)
 
 
+HUB = "hub"   # the outage of a host share's own link to the hub (stats.json outages)
+
+
+def _host_label(w) -> str:
+    """How a worker's host is named in what the launcher says ("hub-host" for the host the
+    layout calls local: the one that runs the hub)."""
+    return "hub-host" if w.host in ("local", "localhost", "127.0.0.1") else w.host
+
+
 def _connect_endpoints(listen: list[str]) -> list[str]:
     return [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in listen]
 
@@ -129,18 +146,29 @@ def _exit_text(rc: int) -> str:
 
 
 class Launcher:
-    def __init__(self, layout: Layout, verbose: bool = False, progress=None, policy: RestartPolicy | None = None):
+    def __init__(self, layout: Layout, verbose: bool = False, progress=None, policy: RestartPolicy | None = None,
+                 host: str | None = None, connect: list[str] | None = None):
         from workers import worker_class
 
         self.layout = layout.copy()
         self.verbose = verbose
         self.policy = policy or RestartPolicy(**layout.restarts)
+        self.host = host   # None: this host runs the hub and the workers placed here
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / ERROR_DIR).mkdir(exist_ok=True)
-        hub = _hub_bus(self.layout.bus)
-        self.hub_bus = hub
-        self.layout.bus = dataclasses.replace(hub, connect=_connect_endpoints(hub.listen))
+        if host is None:
+            hub = _hub_bus(self.layout.bus)
+            self.hub_bus = hub
+            self.layout.bus = dataclasses.replace(hub, connect=_connect_endpoints(hub.listen))
+        else:   # one host's share: its workers and this launcher are clients of the hub elsewhere
+            if not connect:
+                raise InputError(f"--host {host}: give the hub's endpoint with --connect (e.g. tcp/10.0.0.1:7447)")
+            if host not in {w.host for w in self.layout.workers}:
+                hosts = sorted({w.host for w in self.layout.workers})
+                raise InputError(f"--host {host}: no worker of the layout is on that host (hosts: {', '.join(hosts)})")
+            self.hub_bus = None
+            self.layout.bus = dataclasses.replace(self.layout.bus, listen=[], connect=list(connect))
         self.layout_path = self.out / "layout.yaml"
         self.layout.save(self.layout_path)
         self.procs: list[_Proc] = []
@@ -148,8 +176,8 @@ class Launcher:
         self.remote: dict[str, list[str]] = {}
         self.remote_sources = []
         for w in self.layout.workers:
-            if not w.local:
-                self.remote.setdefault(w.host, []).append(w.name)
+            if not self._mine(w):
+                self.remote.setdefault(_host_label(w), []).append(w.name)
                 if not worker_class(w.kind).CONSUMES:
                     self.remote_sources.append(w.name)
         self.alive: set[str] = set()            # workers on the bus (liveliness), from zenoh's thread
@@ -157,9 +185,10 @@ class Launcher:
         self.host_down: dict[str, float] = {}    # host -> since when none of its workers is on the bus
         self.outages: list[dict] = []
         self._host_said: dict[str, float] = {}
+        self._said_seen, self._seen_note = False, time.monotonic()
         for w in self.layout.workers:
             cls = worker_class(w.kind)
-            if not w.local or (cls.DISPLAY and self.layout.run.headless):
+            if not self._mine(w) or (cls.DISPLAY and self.layout.run.headless):
                 continue
             self.procs.append(_Proc(name=w.name, source=not cls.CONSUMES))
         self.progress = progress
@@ -177,6 +206,10 @@ class Launcher:
         self._last_stats_write = 0.0
         self._reserve = self.out / ".reserve"
         self.started = time.time()   # the run's start-up is counted from here (stats.json "startup")
+
+    def _mine(self, w) -> bool:
+        """A worker this launcher starts: its host's (``--host``), else the local ones."""
+        return w.host == self.host if self.host is not None else w.local
 
     # -- processes ----------------------------------------------------------------
     def _spawn(self, p: _Proc) -> None:
@@ -252,6 +285,9 @@ class Launcher:
     def _watch_hosts(self, now: float) -> None:
         """Say when another host's workers all leave the bus and when they are back; end the
         run once a host has been gone for ``peer_timeout_s``."""
+        self._say_seen(now)
+        if HUB in self.host_down:   # this host's own link to the hub is down: _watch_hub says it
+            return
         with self._lock:
             alive = set(self.alive)
         for host, names in self.remote.items():
@@ -278,6 +314,52 @@ class Launcher:
                 print(f"smartroom: {reason}; stopping", file=sys.stderr)
                 self.request_stop(hard=True, user=False)
 
+    def _watch_hub(self, now: float) -> None:
+        """One host's share: its link to the hub; its workers are stopped once the hub has
+        been unreachable for ``peer_timeout_s``."""
+        try:
+            linked = bool(list(self._session.info.routers_zid()))
+        except Exception:  # noqa: BLE001 - the session is closing
+            return
+        down = self.host_down.get(HUB)
+        if linked:
+            if down is not None:
+                self.host_down.pop(HUB)
+                if now - down > HUB_NOTE_S:
+                    self.outages.append({"host": HUB, "until": round(time.time(), 3), "s": round(now - down, 1)})
+                    print(f"smartroom: link to the hub back after {now - down:.0f} s", file=sys.stderr)
+            return
+        down = self.host_down.setdefault(HUB, now)
+        if now - down > HUB_NOTE_S and now - self._host_said.get(HUB, 0.0) >= 10.0:
+            self._host_said[HUB] = now
+            print(f"smartroom: link to the hub down for {now - down:.0f} s (waiting up to "
+                  f"{self.policy.peer_timeout_s:.0f} s)", file=sys.stderr)
+        if now - down > self.policy.peer_timeout_s and self._stop_level == 0:
+            reason = (f"the hub unreachable for {now - down:.0f} s (restarts: peer_timeout_s "
+                      f"{self.policy.peer_timeout_s:.0f} s)")
+            self.reasons.append(reason)
+            print(f"smartroom: {reason}; stopping this host's workers", file=sys.stderr)
+            self.request_stop(hard=True, user=False)
+
+    def _say_seen(self, now: float) -> None:
+        """Which workers of the other hosts are on the bus: said once all are, or every
+        10 s while some are missing."""
+        with self._lock:
+            alive = set(self.alive)
+        names = [n for ns in self.remote.values() for n in ns]
+        seen = [n for n in names if n in alive]
+        if self._said_seen or (len(seen) < len(names) and now - self._seen_note < 10.0):
+            return
+        self._seen_note = now
+        missing = [n for n in names if n not in alive]
+        where = "; ".join(f"{h}: {', '.join(n for n in ns if n in alive) or '-'}" for h, ns in sorted(self.remote.items()))
+        if missing:
+            print(f"smartroom: workers of other hosts on the bus: {where}; not yet: {', '.join(missing)}",
+                  file=sys.stderr)
+        else:
+            self._said_seen = True
+            print(f"smartroom: every worker of the other hosts is on the bus ({where})", file=sys.stderr)
+
     def _ended_remotely(self, names: list[str]) -> bool:
         """Every one of these remote workers has sent its end of stream (left, not lost)."""
         return all(n in self.eos for n in names)
@@ -286,7 +368,10 @@ class Launcher:
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
         self.started = time.time()
-        session = self._session = open_session(self.hub_bus, mode="router")
+        if self.host is None:
+            session = self._session = open_session(self.hub_bus, mode="router")
+        else:
+            session = self._session = open_session(self.layout.bus.for_worker(), mode="client")
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
@@ -392,6 +477,8 @@ class Launcher:
                             and all(n in self.eos for n in self.remote_sources))
             if self.remote:
                 self._watch_hosts(now)
+            if self.host is not None:
+                self._watch_hub(now)
             if sources_done and self._stop_level == 0 and now - last_progress > DRAIN_TIMEOUT_S:
                 stuck = [p.name for p in self.procs if not p.done]
                 reason = f"no progress for {DRAIN_TIMEOUT_S:.0f} s after the sources ended (waiting: {', '.join(stuck)})"

@@ -8,6 +8,7 @@ import json
 import os
 import random
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -16,7 +17,7 @@ import pytest
 import yaml
 
 from tests.conftest import ROOT, start_smartroom
-from tests.runs import stats_of, voxel_frames, wait_for, write_layout
+from tests.runs import stats_of, voxel_frames, wait_for, worker_pid, write_layout
 from tests.synthetic import write_tiny_recording
 
 pytestmark = pytest.mark.integration
@@ -68,7 +69,9 @@ def _layout(tmp_path, name, listen, hosts: bool):
     return path
 
 
-def _two_host_run(tmp_path, rec, host, name, cut_at=None, cut_s=0.0):
+def _two_host_run(tmp_path, rec, host, name, cut_at=None, cut_s=0.0, share=False):
+    """The hub's host here; the camera PC's workers started in the namespace by hand
+    (``smartroom worker``) or, with ``share``, by its own launcher (``smartroom run --host``)."""
     port = random.randint(20000, 40000)
     layout = _layout(tmp_path, name, f"tcp/{host['local']}:{port}", hosts=True)
     out = tmp_path / name
@@ -76,12 +79,20 @@ def _two_host_run(tmp_path, rec, host, name, cut_at=None, cut_s=0.0):
     remote = []
     try:
         assert wait_for(lambda: (out / "layout.yaml").is_file(), timeout=30)
-        for worker in ("grabber", "segmentation"):   # the camera PC's share, started there by hand
+        hub = f"tcp/{host['local']}:{port}"
+        commands = ([["run", "--host", "camera-pc", "--headless", "--out", str(tmp_path / f"{name}-camera-pc")]]
+                    if share else [["worker", "grabber"], ["worker", "segmentation"]])
+        for command in commands:   # the camera PC's share
             remote.append(subprocess.Popen(
-                ["ip", "netns", "exec", host["ns"], sys.executable, "-m", "app.cli", "worker", worker,
-                 "--layout", str(out / "layout.yaml"), "--connect", f"tcp/{host['local']}:{port}"],
+                ["ip", "netns", "exec", host["ns"], sys.executable, "-m", "app.cli", *command,
+                 "--layout", str(out / "layout.yaml"), "--connect", hub],
                 cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                 env=dict(os.environ, PYTHONUNBUFFERED="1")))
+        if share == "kill":   # a crash on the camera PC: its launcher restarts the worker
+            seg = wait_for(lambda: worker_pid(tmp_path / f"{name}-camera-pc", "segmentation"), timeout=60)
+            assert seg, "the camera PC's segmentation never reported"
+            time.sleep(1.0)
+            os.kill(seg, signal.SIGKILL)
         if cut_at is not None:
             assert wait_for(lambda: ((stats_of(out) or {}).get("stages", {}).get("recorder", {})
                                      .get("frames_out", 0) >= cut_at), timeout=90), "frames never flowed"
@@ -138,3 +149,34 @@ def test_two_hosts_in_two_namespaces(rec, one_host, camera_host, tmp_path, cut_s
         assert outage and outage[0]["s"] >= cut_s - 20, s["outages"]
         assert all("link to the hub back after" in e for e in remote_err), remote_err
     print(json.dumps(s.get("outages")))
+
+
+@pytest.mark.parametrize("kill", [False, True], ids=["share", "share, segmentation killed"])
+def test_the_camera_pc_share_started_by_run_host(rec, one_host, camera_host, tmp_path, kill):
+    """``smartroom run --host camera-pc`` on the camera PC starts its workers (and restarts
+    one killed there); the run equals a one-host run, and the share says what it sees."""
+    out, rc, err, remote_rc, remote_err = _two_host_run(tmp_path, rec, camera_host, "two",
+                                                        share="kill" if kill else True)
+    assert rc == 0, err[-3000:]
+    assert remote_rc == [0], remote_err
+    assert "every worker of the other hosts is on the bus (hub-host: reconstruction, recorder)" in remote_err[0]
+    assert "every worker of the other hosts is on the bus (camera-pc: grabber, segmentation)" in err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    if kill:   # the segmentation's background models start again after a restart: same frames, masks may differ
+        assert [f for f, _ in voxel_frames(out / "voxels.bin")] == list(range(FRAMES))
+    else:
+        assert _voxels(out / "voxels.bin") == one_host
+    share = stats_of(tmp_path / "two-camera-pc")
+    assert share["complete"] is True and set(share["exits"]) == {"grabber", "segmentation"}
+    assert share["stages"]["segmentation"]["frames_out"] == FRAMES
+    assert share["stages"]["segmentation"]["restarts"] == (1 if kill else 0)
+
+
+def test_run_host_refuses_a_host_the_layout_does_not_name(tmp_path):
+    from tests.conftest import smartroom
+    layout = _layout(tmp_path, "l", "tcp/127.0.0.1:0", hosts=True)
+    r = smartroom("run", "--host", "nowhere", "--layout", layout, "--connect", "tcp/127.0.0.1:9", "--out",
+                  tmp_path / "o", "--headless")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "--host nowhere: no worker of the layout is on that host (hosts: camera-pc, local)" in r.stderr

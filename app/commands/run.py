@@ -6,10 +6,16 @@ import sys
 from pathlib import Path
 
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
+from app.errors import InputError
 
 
 def add_arguments(p) -> None:
     add_pipeline_arguments(p)
+    p.add_argument("--host", metavar="NAME",
+                   help="start only the workers the layout places on host NAME (another host's share of a "
+                        "multi-host room; with --connect, and the layout the hub's host wrote in its results)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="with --host: zenoh endpoint of the hub, e.g. tcp/10.0.0.1:7447 (repeatable)")
     p.add_argument("--linger", action="store_true",
                    help="keep the viewer up after the stream ends (with the replay of the run) until Ctrl-C")
 
@@ -18,6 +24,11 @@ def main(args) -> int:
     from app.launcher import Launcher
     from app.report import Progress, summary_table
 
+    if args.host:
+        return host_share(args)
+    if args.connect:
+        raise InputError("--connect is for --host (another host's share); the hub's host listens on the "
+                         "layout's bus endpoints")
     layout = resolve_layout(args)
     run = resolve_source(args)
     run.out = str(resolve_out(args))
@@ -50,6 +61,32 @@ def main(args) -> int:
     if lingering and rc == 0:
         from app.commands.view import linger
         rc = linger(layout, run.out)
+    return rc
+
+
+def host_share(args) -> int:
+    """``smartroom run --host H --connect ENDPOINT --layout <hub host's out>/layout.yaml``:
+    start, watch and restart the workers the layout places on host H, as clients of the
+    hub elsewhere; their own ``stats.json`` and logs in ``--out``."""
+    from app.launcher import Launcher
+
+    layout = resolve_layout(args)
+    run = layout.run
+    if args.recording:
+        run.recording = str(Path(args.recording).resolve())
+    if args.frames is not None:
+        run.frames = args.frames
+    run.out = str(resolve_out(args))
+    run.headless = args.headless or run.headless
+    launcher = Launcher(layout, verbose=args.verbose, host=args.host, connect=args.connect)
+    names = ", ".join(p.name for p in launcher.procs)
+    print(f"smartroom: host {args.host}: {names}, clients of the hub at {', '.join(args.connect)}; "
+          f"logs and stats in {run.out}", file=sys.stderr)
+    rc = launcher.run()
+    stats = Path(run.out) / "stats.json"
+    summary = json.loads(stats.read_text()) if stats.is_file() else {}
+    for reason in summary.get("reasons", []):
+        print(f"smartroom: incomplete: {reason}", file=sys.stderr)
     return rc
 
 
