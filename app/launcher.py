@@ -186,6 +186,9 @@ class Launcher:
         self.outages: list[dict] = []
         self._host_said: dict[str, float] = {}
         self._said_seen, self._seen_note = False, time.monotonic()
+        self._remote_host = {n: h for h, ns in self.remote.items() for n in ns}
+        self.skews: dict[str, deque] = {}       # host -> its workers' clocks behind this one (s), latest
+        self._skew_warned: set[str] = set()
         for w in self.layout.workers:
             cls = worker_class(w.kind)
             if not self._mine(w) or (cls.DISPLAY and self.layout.run.headless):
@@ -263,6 +266,8 @@ class Launcher:
         if isinstance(msg, Heartbeat):
             with self._lock:
                 self.watchdog.beat(msg)   # only the pid the launcher started counts
+            if name in self._remote_host:
+                self._clock_skew(self._remote_host[name], time.time() - msg.stamp)
         elif isinstance(msg, EndOfStream):
             self.eos[name] = msg
         elif isinstance(msg, Stats):
@@ -359,6 +364,23 @@ class Launcher:
         else:
             self._said_seen = True
             print(f"smartroom: every worker of the other hosts is on the bus ({where})", file=sys.stderr)
+
+    def _clock_skew(self, host: str, behind: float) -> None:
+        """A heartbeat of another host's worker: its stamp (that host's clock) against this
+        host's clock when it arrived (the link's delay, a millisecond on a LAN, included).
+        Frame stamps of the two hosts are compared (latency, the frames of a moment), so
+        a skew above half a frame is said once per host."""
+        kept = self.skews.setdefault(host, deque(maxlen=15))
+        kept.append(behind)
+        if len(kept) < 5 or host in self._skew_warned:
+            return
+        skew = sorted(kept)[len(kept) // 2]
+        half_frame = 0.5 / (self.layout.run.fps or 25.0)
+        if abs(skew) > half_frame:
+            self._skew_warned.add(host)
+            print(f"smartroom: the clock of host {host} is {abs(skew) * 1e3:.0f} ms "
+                  f"{'behind' if skew > 0 else 'ahead of'} this one's (more than half a frame, "
+                  f"{half_frame * 1e3:.0f} ms): synchronise them (NTP, chrony)", file=sys.stderr)
 
     def _ended_remotely(self, names: list[str]) -> bool:
         """Every one of these remote workers has sent its end of stream (left, not lost)."""
@@ -624,6 +646,8 @@ class Launcher:
             silences = self.watchdog.silences()
         if silences:   # a stage that stood still for a while (stopped, swapped out) and went on
             out["silences"] = silences
+        if self.skews:   # other hosts' clocks behind this one's (median of the latest heartbeats, s)
+            out["clock_skew_s"] = {h: round(sorted(v)[len(v) // 2], 4) for h, v in self.skews.items() if v}
         if self.outages or self.host_down:   # links to other hosts that went down
             now = time.monotonic()
             out["outages"] = list(self.outages) + [{"host": h, "down_s": round(now - t, 1)}

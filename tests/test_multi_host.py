@@ -180,3 +180,23 @@ def test_run_host_refuses_a_host_the_layout_does_not_name(tmp_path):
                   tmp_path / "o", "--headless")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "--host nowhere: no worker of the layout is on that host (hosts: camera-pc, local)" in r.stderr
+
+
+def test_a_skewed_clock_of_another_host_is_said_once(tmp_path, capsys):
+    """Heartbeats of the camera PC's workers stamped 100 ms behind this host's clock (more
+    than half a frame at 25 fps): said once, and kept in stats.json's clock_skew_s."""
+    from app.config import load_layout
+    from app.launcher import Launcher
+
+    layout = load_layout(_layout(tmp_path, "l", "tcp/127.0.0.1:0", hosts=True))
+    layout.run.out = str(tmp_path / "out")
+    layout.run.fps = 25.0
+    launcher = Launcher(layout)
+    for _ in range(4):
+        launcher._clock_skew("camera-pc", 0.010)       # 10 ms: within half a frame (20 ms)
+    assert "clock" not in capsys.readouterr().err
+    for _ in range(20):
+        launcher._clock_skew("camera-pc", 0.100)
+    err = capsys.readouterr().err
+    assert err.count("the clock of host camera-pc is 100 ms behind this one's") == 1
+    assert launcher.summary(final=True)["clock_skew_s"] == {"camera-pc": 0.1}
