@@ -370,11 +370,12 @@ class Launcher:
         host's clock when it arrived (the link's delay, a millisecond on a LAN, included).
         Frame stamps of the two hosts are compared (latency, the frames of a moment), so
         a skew above half a frame is said once per host."""
-        kept = self.skews.setdefault(host, deque(maxlen=15))
-        kept.append(behind)
-        if len(kept) < 5 or host in self._skew_warned:
-            return
-        skew = sorted(kept)[len(kept) // 2]
+        with self._lock:   # zenoh's thread; stats.json reads them from the run's
+            kept = self.skews.setdefault(host, deque(maxlen=15))
+            kept.append(behind)
+            if len(kept) < 5 or host in self._skew_warned:
+                return
+            skew = sorted(kept)[len(kept) // 2]
         half_frame = 0.5 / (self.layout.run.fps or 25.0)
         if abs(skew) > half_frame:
             self._skew_warned.add(host)
@@ -646,8 +647,10 @@ class Launcher:
             silences = self.watchdog.silences()
         if silences:   # a stage that stood still for a while (stopped, swapped out) and went on
             out["silences"] = silences
-        if self.skews:   # other hosts' clocks behind this one's (median of the latest heartbeats, s)
-            out["clock_skew_s"] = {h: round(sorted(v)[len(v) // 2], 4) for h, v in self.skews.items() if v}
+        with self._lock:   # other hosts' clocks behind this one's (median of the latest heartbeats, s)
+            skews = {h: round(sorted(v)[len(v) // 2], 4) for h, v in self.skews.items() if v}
+        if skews:
+            out["clock_skew_s"] = skews
         if self.outages or self.host_down:   # links to other hosts that went down
             now = time.monotonic()
             out["outages"] = list(self.outages) + [{"host": h, "down_s": round(now - t, 1)}
