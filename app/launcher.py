@@ -68,8 +68,9 @@ from app.errors import InputError
 from app.files import write_json
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
+from app.hosts import Hosts, host_label
 from app.watchdog import DEFAULT_WATCHDOG_S, Watchdog
-from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, HUB_NOTE_S, LAUNCHER_PID_ENV, PEER_TIMEOUT_S
+from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV, PEER_TIMEOUT_S
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
 
@@ -123,15 +124,6 @@ def _hub_bus(bus: BusConfig) -> BusConfig:
     return dataclasses.replace(bus, listen=listen)
 
 
-HUB = "hub"   # the outage of a host share's own link to the hub (stats.json outages)
-
-
-def _host_label(w) -> str:
-    """How a worker's host is named in what the launcher says ("hub-host" for the host the
-    layout calls local: the one that runs the hub)."""
-    return "hub-host" if w.host in ("local", "localhost", "127.0.0.1") else w.host
-
-
 def _connect_endpoints(listen: list[str]) -> list[str]:
     return [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in listen]
 
@@ -173,22 +165,14 @@ class Launcher:
         self.layout.save(self.layout_path)
         self.procs: list[_Proc] = []
         #: workers of other hosts by host, and the sources among them (their end of stream ends the input)
-        self.remote: dict[str, list[str]] = {}
+        remote: dict[str, list[str]] = {}
         self.remote_sources = []
         for w in self.layout.workers:
             if not self._mine(w):
-                self.remote.setdefault(_host_label(w), []).append(w.name)
+                remote.setdefault(host_label(w.host), []).append(w.name)
                 if not worker_class(w.kind).CONSUMES:
                     self.remote_sources.append(w.name)
-        self.alive: set[str] = set()            # workers on the bus (liveliness), from zenoh's thread
-        self.host_seen: dict[str, bool] = {}     # a host whose workers have been on the bus
-        self.host_down: dict[str, float] = {}    # host -> since when none of its workers is on the bus
-        self.outages: list[dict] = []
-        self._host_said: dict[str, float] = {}
-        self._said_seen, self._seen_note = False, time.monotonic()
-        self._remote_host = {n: h for h, ns in self.remote.items() for n in ns}
-        self.skews: dict[str, deque] = {}       # host -> its workers' clocks behind this one (s), latest
-        self._skew_warned: set[str] = set()
+        self.hosts = Hosts(remote, self.policy.peer_timeout_s, self.layout.run.fps)
         for w in self.layout.workers:
             cls = worker_class(w.kind)
             if not self._mine(w) or (cls.DISPLAY and self.layout.run.headless):
@@ -266,8 +250,7 @@ class Launcher:
         if isinstance(msg, Heartbeat):
             with self._lock:
                 self.watchdog.beat(msg)   # only the pid the launcher started counts
-            if name in self._remote_host:
-                self._clock_skew(self._remote_host[name], time.time() - msg.stamp)
+            self.hosts.heartbeat(name, msg.stamp)   # another host's clock against this one's
         elif isinstance(msg, EndOfStream):
             self.eos[name] = msg
         elif isinstance(msg, Stats):
@@ -280,112 +263,16 @@ class Launcher:
 
     def _on_alive(self, sample) -> None:
         import zenoh
-        name = Keys.last(sample.key_expr)
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                self.alive.discard(name)
-            else:
-                self.alive.add(name)
+        self.hosts.alive(Keys.last(sample.key_expr), sample.kind != zenoh.SampleKind.DELETE)
 
-    def _watch_hosts(self, now: float) -> None:
-        """Say when another host's workers all leave the bus and when they are back; end the
-        run once a host has been gone for ``peer_timeout_s``."""
-        self._say_seen(now)
-        if HUB in self.host_down:   # this host's own link to the hub is down: _watch_hub says it
-            return
-        with self._lock:
-            alive = set(self.alive)
-        for host, names in self.remote.items():
-            here = alive & set(names)
-            if here:
-                self.host_seen[host] = True
-                since = self.host_down.pop(host, None)
-                if since is not None and now - since > HUB_NOTE_S:
-                    self.outages.append({"host": host, "until": round(time.time(), 3), "s": round(now - since, 1)})
-                    print(f"smartroom: link to host {host} back after {now - since:.0f} s", file=sys.stderr)
-                continue
-            if not self.host_seen.get(host) or self._ended_remotely(names):
-                continue
-            since = self.host_down.setdefault(host, now)
-            down = now - since
-            if down > HUB_NOTE_S and now - self._host_said.get(host, 0.0) >= 10.0:
-                self._host_said[host] = now
-                print(f"smartroom: link to host {host} down for {down:.0f} s ({', '.join(names)} not on the bus; "
-                      f"waiting up to {self.policy.peer_timeout_s:.0f} s)", file=sys.stderr)
-            if down > self.policy.peer_timeout_s and self._stop_level == 0:
-                reason = (f"host {host} ({', '.join(names)}) gone from the bus for {down:.0f} s "
-                          f"(restarts: peer_timeout_s {self.policy.peer_timeout_s:.0f} s)")
-                self.reasons.append(reason)
-                print(f"smartroom: {reason}; stopping", file=sys.stderr)
-                self.request_stop(hard=True, user=False)
-
-    def _watch_hub(self, now: float) -> None:
-        """One host's share: its link to the hub; its workers are stopped once the hub has
-        been unreachable for ``peer_timeout_s``."""
+    def _hub_linked(self) -> bool | None:
+        """A host share's link to the hub (zenoh knows a router); None where this host runs it."""
+        if self.host is None:
+            return None
         try:
-            linked = bool(list(self._session.info.routers_zid()))
+            return bool(list(self._session.info.routers_zid()))
         except Exception:  # noqa: BLE001 - the session is closing
-            return
-        down = self.host_down.get(HUB)
-        if linked:
-            if down is not None:
-                self.host_down.pop(HUB)
-                if now - down > HUB_NOTE_S:
-                    self.outages.append({"host": HUB, "until": round(time.time(), 3), "s": round(now - down, 1)})
-                    print(f"smartroom: link to the hub back after {now - down:.0f} s", file=sys.stderr)
-            return
-        down = self.host_down.setdefault(HUB, now)
-        if now - down > HUB_NOTE_S and now - self._host_said.get(HUB, 0.0) >= 10.0:
-            self._host_said[HUB] = now
-            print(f"smartroom: link to the hub down for {now - down:.0f} s (waiting up to "
-                  f"{self.policy.peer_timeout_s:.0f} s)", file=sys.stderr)
-        if now - down > self.policy.peer_timeout_s and self._stop_level == 0:
-            reason = (f"the hub unreachable for {now - down:.0f} s (restarts: peer_timeout_s "
-                      f"{self.policy.peer_timeout_s:.0f} s)")
-            self.reasons.append(reason)
-            print(f"smartroom: {reason}; stopping this host's workers", file=sys.stderr)
-            self.request_stop(hard=True, user=False)
-
-    def _say_seen(self, now: float) -> None:
-        """Which workers of the other hosts are on the bus: said once all are, or every
-        10 s while some are missing."""
-        with self._lock:
-            alive = set(self.alive)
-        names = [n for ns in self.remote.values() for n in ns]
-        seen = [n for n in names if n in alive]
-        if self._said_seen or (len(seen) < len(names) and now - self._seen_note < 10.0):
-            return
-        self._seen_note = now
-        missing = [n for n in names if n not in alive]
-        where = "; ".join(f"{h}: {', '.join(n for n in ns if n in alive) or '-'}" for h, ns in sorted(self.remote.items()))
-        if missing:
-            print(f"smartroom: workers of other hosts on the bus: {where}; not yet: {', '.join(missing)}",
-                  file=sys.stderr)
-        else:
-            self._said_seen = True
-            print(f"smartroom: every worker of the other hosts is on the bus ({where})", file=sys.stderr)
-
-    def _clock_skew(self, host: str, behind: float) -> None:
-        """A heartbeat of another host's worker: its stamp (that host's clock) against this
-        host's clock when it arrived (the link's delay, a millisecond on a LAN, included).
-        Frame stamps of the two hosts are compared (latency, the frames of a moment), so
-        a skew above half a frame is said once per host."""
-        with self._lock:   # zenoh's thread; stats.json reads them from the run's
-            kept = self.skews.setdefault(host, deque(maxlen=15))
-            kept.append(behind)
-            if len(kept) < 5 or host in self._skew_warned:
-                return
-            skew = sorted(kept)[len(kept) // 2]
-        half_frame = 0.5 / (self.layout.run.fps or 25.0)
-        if abs(skew) > half_frame:
-            self._skew_warned.add(host)
-            print(f"smartroom: the clock of host {host} is {abs(skew) * 1e3:.0f} ms "
-                  f"{'behind' if skew > 0 else 'ahead of'} this one's (more than half a frame, "
-                  f"{half_frame * 1e3:.0f} ms): synchronise them (NTP, chrony)", file=sys.stderr)
-
-    def _ended_remotely(self, names: list[str]) -> bool:
-        """Every one of these remote workers has sent its end of stream (left, not lost)."""
-        return all(n in self.eos for n in names)
+            return True
 
     # -- the run ------------------------------------------------------------------
     def run(self) -> int:
@@ -400,7 +287,7 @@ class Launcher:
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
                 session.declare_subscriber(keys.eos(), self._on_control),
                 session.declare_subscriber(keys.heartbeat(), self._on_control)]
-        if self.remote:
+        if self.hosts.remote or self.host is not None:
             subs.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}
         self._make_reserve()
@@ -498,10 +385,12 @@ class Launcher:
             # a source on another host keeps the run open until its end of stream arrives
             sources_done = (all(p.done for p in self.procs if p.source)
                             and all(n in self.eos for n in self.remote_sources))
-            if self.remote:
-                self._watch_hosts(now)
-            if self.host is not None:
-                self._watch_hub(now)
+            if self.hosts.remote or self.host is not None:
+                gone = self.hosts.check(self.eos, self._hub_linked())
+                if gone and self._stop_level == 0:   # a host, or the hub, gone for peer_timeout_s
+                    self.reasons.append(gone)
+                    print(f"smartroom: {gone}; stopping", file=sys.stderr)
+                    self.request_stop(hard=True, user=False)
             if sources_done and self._stop_level == 0 and now - last_progress > DRAIN_TIMEOUT_S:
                 stuck = [p.name for p in self.procs if not p.done]
                 reason = f"no progress for {DRAIN_TIMEOUT_S:.0f} s after the sources ended (waiting: {', '.join(stuck)})"
@@ -647,14 +536,7 @@ class Launcher:
             silences = self.watchdog.silences()
         if silences:   # a stage that stood still for a while (stopped, swapped out) and went on
             out["silences"] = silences
-        with self._lock:   # other hosts' clocks behind this one's (median of the latest heartbeats, s)
-            skews = {h: round(sorted(v)[len(v) // 2], 4) for h, v in self.skews.items() if v}
-        if skews:
-            out["clock_skew_s"] = skews
-        if self.outages or self.host_down:   # links to other hosts that went down
-            now = time.monotonic()
-            out["outages"] = list(self.outages) + [{"host": h, "down_s": round(now - t, 1)}
-                                                   for h, t in self.host_down.items()]
+        out.update(self.hosts.figures())   # outages of links to other hosts, their clocks' skews
         return out
 
     def _write_stats(self, final: bool) -> None:

@@ -182,21 +182,56 @@ def test_run_host_refuses_a_host_the_layout_does_not_name(tmp_path):
     assert "--host nowhere: no worker of the layout is on that host (hosts: camera-pc, local)" in r.stderr
 
 
-def test_a_skewed_clock_of_another_host_is_said_once(tmp_path, capsys):
+def test_a_skewed_clock_of_another_host_is_said_once():
     """Heartbeats of the camera PC's workers stamped 100 ms behind this host's clock (more
-    than half a frame at 25 fps): said once, and kept in stats.json's clock_skew_s."""
-    from app.config import load_layout
-    from app.launcher import Launcher
+    than half a frame at 25 fps): said once, and kept for stats.json's clock_skew_s."""
+    from app.hosts import Hosts
 
-    layout = load_layout(_layout(tmp_path, "l", "tcp/127.0.0.1:0", hosts=True))
-    layout.run.out = str(tmp_path / "out")
-    layout.run.fps = 25.0
-    launcher = Launcher(layout)
+    said = []
+    hosts = Hosts({"camera-pc": ["grabber"]}, 600.0, 25.0, wall=lambda: 1000.0, say=said.append)
     for _ in range(4):
-        launcher._clock_skew("camera-pc", 0.010)       # 10 ms: within half a frame (20 ms)
-    assert "clock" not in capsys.readouterr().err
+        hosts.heartbeat("grabber", 1000.0 - 0.010)      # 10 ms: within half a frame (20 ms)
+    hosts.heartbeat("reconstruction", 990.0)            # a worker of this host: not another clock
+    assert not said
     for _ in range(20):
-        launcher._clock_skew("camera-pc", 0.100)
-    err = capsys.readouterr().err
-    assert err.count("the clock of host camera-pc is 100 ms behind this one's") == 1
-    assert launcher.summary(final=True)["clock_skew_s"] == {"camera-pc": 0.1}
+        hosts.heartbeat("grabber", 1000.0 - 0.100)
+    assert said == ["the clock of host camera-pc is 100 ms behind this one's (more than half a frame, 20 ms): "
+                    "synchronise them (NTP, chrony)"]
+    assert hosts.figures() == {"clock_skew_s": {"camera-pc": 0.1}}
+
+
+def test_links_down_and_back_are_said_kept_and_end_the_run_after_peer_timeout():
+    from app.hosts import HUB, Hosts
+
+    clock, said = [0.0], []
+    hosts = Hosts({"camera-pc": ["grabber", "segmentation"]}, 300.0, 25.0, clock=lambda: clock[0],
+                  wall=lambda: 5000.0, say=said.append)
+    assert hosts.check(set()) is None and not said              # not started there yet: no outage
+    clock[0] = 12.0
+    assert hosts.check(set()) is None
+    assert said[-1].startswith("workers of other hosts on the bus: camera-pc: -; not yet: grabber, segmentation")
+    hosts.alive("grabber", True)
+    hosts.alive("segmentation", True)
+    assert hosts.check(set()) is None
+    assert said[-1] == "every worker of the other hosts is on the bus (camera-pc: grabber, segmentation)"
+    hosts.alive("grabber", False)
+    hosts.alive("segmentation", False)
+    assert hosts.check(set()) is None                            # the link is cut
+    clock[0] = 42.0
+    assert hosts.check(set()) is None
+    assert said[-1] == "link to host camera-pc down for 30 s (waiting up to 300 s)"
+    hosts.alive("segmentation", True)
+    clock[0] = 50.0
+    assert hosts.check(set()) is None and said[-1] == "link to host camera-pc back after 38 s"
+    assert hosts.figures()["outages"] == [{"host": "camera-pc", "until": 5000.0, "s": 38.0}]
+    hosts.alive("segmentation", False)
+    assert hosts.check({"grabber", "segmentation"}) is None       # they ended their stream: not an outage
+    assert hosts.check({"grabber"}) is None
+    clock[0] = 351.0
+    assert hosts.check({"grabber"}) == ("host camera-pc (grabber, segmentation) gone from the bus for 301 s "
+                                        "(restarts: peer_timeout_s 300 s)")
+    share = Hosts({"hub-host": ["reconstruction"]}, 300.0, 25.0, clock=lambda: clock[0], say=said.append)
+    assert share.check(set(), hub_linked=False) is None
+    clock[0] = 652.0
+    assert share.check(set(), hub_linked=False).startswith("the hub unreachable for 301 s")
+    assert HUB in {o["host"] for o in share.figures()["outages"]}
