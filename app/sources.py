@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -97,8 +98,10 @@ class _CameraThread(threading.Thread):
                     self._failed("cannot be opened")
                     self.stopped.wait(self.reopen_s)
                     continue
-                # a video file (it knows its length) is read at the camera's rate, not at once
-                self.paced = self.cap.get(cv2.CAP_PROP_FRAME_COUNT) > 0
+                # a video file (it knows its length, or is a file: a playlist of them does not
+                # say its length) is read at the camera's rate, not at once
+                self.paced = (self.cap.get(cv2.CAP_PROP_FRAME_COUNT) > 0
+                              or (isinstance(self.source, str) and Path(self.source).is_file()))
                 self.next_read = time.monotonic()
             if self.paced:  # a file played as a camera delivers at the camera's rate
                 self.stopped.wait(max(0.0, self.next_read - time.monotonic()))
