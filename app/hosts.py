@@ -9,7 +9,8 @@ workers by their liveliness on the bus and by their heartbeats:
   their stream) is down; the launcher says "link to host H down for N s" every
   :data:`NOTE_PERIOD_S`, "back after N s" when any is back, and keeps each outage. A
   launcher of one host's share (``smartroom run --host``) follows its own link to the hub
-  the same way (the host :data:`HUB`). A link down for ``peer_timeout_s`` ends the run.
+  the same way (the host :data:`HUB`). A link down for ``peer_timeout_s``, or a host
+  whose workers never came on the bus in that time, ends the run.
 - **Clock skew**: a heartbeat's stamp (the sender's clock) against this host's clock when
   it arrives (a LAN's delay, a millisecond, included); frame stamps of the hosts are
   compared (latencies, a frame's views), so a skew above half a frame is said once per
@@ -67,7 +68,7 @@ class Hosts:
         self._skews: dict[str, deque] = {}
         self._skew_said: set[str] = set()
         self._all_seen = False
-        self._seen_said = clock()
+        self._started = self._seen_said = clock()
 
     # -- fed from zenoh's threads ----------------------------------------------------
     def alive(self, name: str, present: bool) -> None:
@@ -106,13 +107,15 @@ class Hosts:
         self._say_seen(alive, now)
         for host, names in self.remote.items():
             up = bool(alive & set(names)) or all(n in ended for n in names)
-            why = self._link(host, up, now, f"link to host {host}",
-                             f"host {host} ({', '.join(names)}) gone from the bus")
+            who = f"host {host} ({', '.join(names)})"
+            why = self._link(host, up, now, f"link to host {host}", f"{who} gone from the bus", who)
             if why:
                 return why
         return None
 
-    def _link(self, key: str, up: bool, now: float, what: str, gone: str) -> str | None:
+    def _link(self, key: str, up: bool, now: float, what: str, gone: str, who: str = "") -> str | None:
+        """One link's rule (``what``: how it is said; ``gone``: the reason once it has been
+        down for ``peer_timeout_s``; ``who``: a host that may never come)."""
         link = self._links.setdefault(key, _Link())
         if up:
             link.seen = True
@@ -122,7 +125,10 @@ class Hosts:
                 self.say(f"{what} back after {now - link.down_since:.0f} s")
             link.down_since = None
             return None
-        if not link.seen and key != HUB:   # a host not started yet is not an outage
+        if not link.seen and key != HUB:   # a host not started yet is not an outage, but it may never come
+            waited = now - self._started
+            if waited > self.peer_timeout_s:
+                return f"{who} never came on the bus in {waited:.0f} s (restarts: peer_timeout_s)"
             return None
         if link.down_since is None:
             link.down_since = now

@@ -230,8 +230,11 @@ def test_links_down_and_back_are_said_kept_and_end_the_run_after_peer_timeout():
     clock[0] = 351.0
     assert hosts.check({"grabber"}) == ("host camera-pc (grabber, segmentation) gone from the bus for 301 s "
                                         "(restarts: peer_timeout_s 300 s)")
+    never = Hosts({"camera-pc": ["grabber"]}, 300.0, 25.0, clock=lambda: clock[0], say=said.append)
+    clock[0] += 301.0
+    assert never.check(set()) == "host camera-pc (grabber) never came on the bus in 301 s (restarts: peer_timeout_s)"
     share = Hosts({"hub-host": ["reconstruction"]}, 300.0, 25.0, clock=lambda: clock[0], say=said.append)
     assert share.check(set(), hub_linked=False) is None
-    clock[0] = 652.0
+    clock[0] += 301.0
     assert share.check(set(), hub_linked=False).startswith("the hub unreachable for 301 s")
     assert HUB in {o["host"] for o in share.figures()["outages"]}
