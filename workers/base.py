@@ -406,7 +406,8 @@ class Worker(Restarts):
     def _start_heartbeat(self) -> None:
         """Say once a second, from a thread of its own, that the process lives and how long
         ago its loop turned (:class:`~app.messages.Heartbeat`, the launcher's watchdog)."""
-        pub = Publisher(self.session, self.keys.heartbeat(self.name), droppable=True)
+        # never dropped (congestion control BLOCK): a flood on the bus must not make a live worker look hung
+        pub = Publisher(self.session, self.keys.heartbeat(self.name), droppable=False)
         pid = os.getpid()
 
         def beat():
