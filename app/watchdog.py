@@ -18,7 +18,8 @@ but it is kept (:meth:`Watchdog.silences`, ``stats.json``'s ``silences``): every
 more than :data:`SILENCE_NOTE_S` between two heartbeats.
 
 A worker that has not sent its first heartbeat since it was (re)started is given
-``watchdog_s`` from its start. The launcher kills a hung worker (SIGKILL: a stopped
+``watchdog_s`` from its start, and at least :data:`FIRST_BEAT_S` (importing numpy, numba
+and OpenCV on a kiosk's cold disk, or beside a busy pipeline, takes seconds). The launcher kills a hung worker (SIGKILL: a stopped
 process ignores everything else) and restarts it like one that crashed, with the reason
 "hung" in ``stats.json``'s ``restarts``.
 
@@ -34,6 +35,7 @@ from app.messages import Heartbeat
 __all__ = ["Watchdog", "DEFAULT_WATCHDOG_S"]
 
 DEFAULT_WATCHDOG_S = 30.0   # a loop standing still this long with input waiting is hung
+FIRST_BEAT_S = 60.0         # the least a (re)started worker is given for its first heartbeat
 SILENCE_NOTE_S = 5.0        # a gap between heartbeats longer than this is kept as a silence
 MAX_SILENCES = 20           # per worker, the latest
 
@@ -91,10 +93,13 @@ class Watchdog:
         if pulse is None:
             return None
         now = self.clock()
-        silent = now - (pulse.last if pulse.last is not None else pulse.started)
-        if silent > self.watchdog_s:
-            if pulse.last is None:
+        if pulse.last is None:
+            silent = now - pulse.started
+            if silent > max(self.watchdog_s, FIRST_BEAT_S):
                 return f"no heartbeat in the {silent:.0f} s since it started"
+            return None
+        silent = now - pulse.last
+        if silent > self.watchdog_s:
             return f"no heartbeat for {silent:.0f} s (the process stands still)"
         hb = pulse.beat
         if hb is not None and not hb.busy and hb.pending > 0:
