@@ -27,9 +27,10 @@ import threading
 import time
 from collections import deque
 
-__all__ = ["Hosts", "HUB", "NOTE_S", "NOTE_PERIOD_S", "host_label"]
+__all__ = ["Hosts", "HUB", "NOTE_S", "NOTE_PERIOD_S", "PEER_TIMEOUT_S", "host_label"]
 
-HUB = "hub"            # a host share's own link to the hub
+PEER_TIMEOUT_S = 600.0  # a host (or the hub) gone this long ends the run (restarts: peer_timeout_s)
+HUB = "hub"            # a host share's own link to the hub, or a worker's started by itself
 NOTE_S = 2.0           # a link down longer than this is said (and kept as an outage)
 NOTE_PERIOD_S = 10.0   # how often a link still down, or workers not yet seen, are said again
 SKEW_BEATS = 15        # heartbeats per host behind the skew (their median)

@@ -68,9 +68,9 @@ from app.errors import InputError
 from app.files import write_json
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
-from app.hosts import Hosts, host_label
+from app.hosts import PEER_TIMEOUT_S, Hosts, host_label
 from app.watchdog import DEFAULT_WATCHDOG_S, Watchdog
-from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV, PEER_TIMEOUT_S
+from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
 

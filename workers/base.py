@@ -52,8 +52,6 @@ from workers.restarts import Restarts
 __all__ = ["Worker", "Inbox", "configure_logging", "FILE_ONLY", "EXIT_ENDED", "EXIT_INPUT", "EXIT_STALLED", "EXIT_TERMINATED", "ENDED_ENV", "LAUNCHER_PID_ENV"]
 
 STATS_PERIOD_S = 1.0
-PEER_TIMEOUT_S = 600.0     # a worker without a launcher stops when the hub is unreachable this long
-HUB_NOTE_S = 2.0           # a link to the hub down longer than this is said
 HEARTBEAT_PERIOD_S = 1.0   # a heartbeat from the worker's own thread (the launcher's watchdog, app.watchdog)
 STATE_PERIOD_S = 0.5
 END_GRACE_S = 0.1      # quiet time after the upstream left the bus (its data came before it left)
@@ -426,30 +424,20 @@ class Worker(Restarts):
         layout) says when its link to the hub goes down and comes back, waits out an
         outage of up to ``restarts: peer_timeout_s``, and stops after that (its launcher's
         host is gone for good: no orphans on the camera PC)."""
-        limit = float(self.layout.restarts.get("peer_timeout_s", PEER_TIMEOUT_S))
+        from app.hosts import PEER_TIMEOUT_S, Hosts
+
+        link = Hosts({}, float(self.layout.restarts.get("peer_timeout_s", PEER_TIMEOUT_S)), None,
+                     say=lambda text: self.log.warning("%s", text))
 
         def watch():
-            down = None
             while not self.stop_event.wait(0.5):
                 try:
                     linked = bool(list(self.session.info.routers_zid()))
                 except Exception:  # noqa: BLE001 - the session is closing
                     return
-                now = time.monotonic()
-                if linked:
-                    if down is not None and now - down > HUB_NOTE_S:
-                        self.log.warning("link to the hub back after %.0f s", now - down)
-                    down = None
-                    continue
-                if down is None:
-                    down = now
-                    said = 0.0
-                if now - down > HUB_NOTE_S and now - said >= 10 * HUB_NOTE_S:
-                    said = now
-                    self.log.warning("link to the hub down for %.0f s (waiting up to %.0f s)", now - down, limit)
-                if now - down > limit:
-                    self.log.error("the hub has been unreachable for %.0f s (restarts: peer_timeout_s): stopping",
-                                   now - down)
+                gone = link.check((), hub_linked=linked)
+                if gone:
+                    self.log.error("%s: stopping", gone)
                     self._signal = self._signal or signal.SIGHUP
                     self.stop_event.set()
                     self.inbox.wake()
