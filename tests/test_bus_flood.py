@@ -36,30 +36,38 @@ def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
         session.close()
 
 
-def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tmp_path):
+def _run_beside(flood, recording, tmp_path, extra_workers=()):
+    """A real run of ``recording`` (its hub on a known port) with ``flood(port, room, stop,
+    sent)`` publishing from another process's session from 2 s in; ``(out, stdout, stderr,
+    exit code, messages sent)``."""
     port = free_port()
-    path = write_layout(tmp_path / "layout.yaml", extra_workers=[{"name": "monitor", "kind": "monitor",
-                                                                   "params": {"line_period": 2.0}}])
+    path = write_layout(tmp_path / "layout.yaml", extra_workers=list(extra_workers))
     doc = yaml.safe_load(path.read_text())
     doc["bus"]["listen"] = [f"tcp/127.0.0.1:{port}"]
     path.write_text(yaml.safe_dump(doc))
     out = tmp_path / "out"
     run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
-                            str(long_recording), "--headless", "--out", str(out)], cwd=ROOT,
+                            str(recording), "--headless", "--out", str(out)], cwd=ROOT,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stop, sent = threading.Event(), []
-    flood = threading.Thread(target=_flood, args=(port, doc["room"], stop, sent), daemon=True)
+    thread = threading.Thread(target=flood, args=(port, doc["room"], stop, sent), daemon=True)
     try:
         time.sleep(2.0)        # the hub is up
-        flood.start()
+        thread.start()
         shown, err = run.communicate(timeout=240)
     finally:
         stop.set()
-        flood.join(timeout=30)
+        thread.join(timeout=30)
         if run.poll() is None:
             run.kill()
-    assert sent and sent[0] > 1000, sent
-    assert run.returncode == 0, err[-2000:]
+    return out, shown, err, run.returncode, (sent or [0])[0]
+
+
+def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tmp_path):
+    out, shown, err, rc, sent = _run_beside(_flood, long_recording, tmp_path, extra_workers=[
+        {"name": "monitor", "kind": "monitor", "params": {"line_period": 2.0}}])
+    assert sent > 1000, sent
+    assert rc == 0, err[-2000:]
     stats = json.loads((out / "stats.json").read_text())
     assert stats["complete"] and stats["frames"] == 250
     assert not [n for n in (*stats["workers"], *stats["stages"]) if n.startswith("zz")]
@@ -70,13 +78,13 @@ def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tm
     assert any("rtf=" in ln for ln in lines) and not any("zz" in ln for ln in lines)   # real stages only
 
 
-def _junk(port: int, key: str, stop: threading.Event, sent: list) -> None:
-    """Malformed payloads on one data key, as fast as one process can send them."""
+def _junk(port: int, room: str, stop: threading.Event, sent: list) -> None:
+    """Malformed payloads on one camera's masks, as fast as one process can send them."""
     import zenoh
 
     session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
     try:
-        pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        pub = session.declare_publisher(Keys(room).mask("cam0"), congestion_control=zenoh.CongestionControl.BLOCK)
         i = 0
         while not stop.is_set():
             pub.put(b"SRM" + bytes([2, 2]) + i.to_bytes(4, "little") * 8)
@@ -93,28 +101,9 @@ def test_junk_on_a_data_key_pushes_no_real_message_out(long_recording, tmp_path)
     the bounded inbox: frames lost, or a run that waited for them)."""
     from app.results import iter_voxels
 
-    port = free_port()
-    path = write_layout(tmp_path / "layout.yaml")
-    doc = yaml.safe_load(path.read_text())
-    doc["bus"]["listen"] = [f"tcp/127.0.0.1:{port}"]
-    path.write_text(yaml.safe_dump(doc))
-    out = tmp_path / "out"
-    run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
-                            str(long_recording), "--headless", "--out", str(out)], cwd=ROOT,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    stop, sent = threading.Event(), []
-    flood = threading.Thread(target=_junk, args=(port, Keys(doc["room"]).mask("cam0"), stop, sent), daemon=True)
-    try:
-        time.sleep(2.0)        # the hub is up
-        flood.start()
-        _, err = run.communicate(timeout=240)
-    finally:
-        stop.set()
-        flood.join(timeout=30)
-        if run.poll() is None:
-            run.kill()
-    assert sent and sent[0] > 5000, sent
-    assert run.returncode == 0, err[-2000:]
+    out, _, err, rc, sent = _run_beside(_junk, long_recording, tmp_path)
+    assert sent > 5000, sent
+    assert rc == 0, err[-2000:]
     stats = json.loads((out / "stats.json").read_text())
     assert stats["complete"]
     rec = stats["workers"]["reconstruction"]

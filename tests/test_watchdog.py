@@ -74,6 +74,27 @@ def test_heartbeats_of_another_process_do_not_count():
     assert dog.hung("pose") is None
 
 
+def _stop(out, name, settle: float, stopped: list) -> float:
+    """SIGSTOP worker ``name`` once it handles frames (its pid appended to ``stopped``); the
+    seconds until the launcher has killed it."""
+    pid = wait_for(lambda: worker_pid(out, name), timeout=60)
+    assert pid, f"{name} never reported"
+    time.sleep(settle)
+    os.kill(pid, signal.SIGSTOP)
+    stopped.append(pid)
+    t0 = time.monotonic()
+    assert wait_for(lambda: not running(pid), timeout=15, period=0.1), "the stopped worker was never killed"
+    return time.monotonic() - t0
+
+
+def _resume(stopped: list) -> None:
+    for pid in stopped:   # a worker the test stopped and the launcher did not kill
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+
+
 @pytest.mark.integration
 def test_a_stage_stopped_offline_is_restarted_and_the_run_completes(tmp_path):
     """SIGSTOP of the reconstruction on a recording: killed within watchdog_s + 2 s, restarted
@@ -82,22 +103,14 @@ def test_a_stage_stopped_offline_is_restarted_and_the_run_completes(tmp_path):
     out = tmp_path / "out"
     layout = write_layout(tmp_path / "layout.yaml", restarts={"watchdog_s": 4})
     proc = start_smartroom("run", "--recording", rec, "--headless", "--layout", layout, "--out", out)
+    stopped = []
     try:
-        pid = wait_for(lambda: worker_pid(out, "reconstruction"), timeout=60)
-        assert pid, "reconstruction never reported"
-        time.sleep(0.5)
-        os.kill(pid, signal.SIGSTOP)
-        t0 = time.monotonic()
-        assert wait_for(lambda: not running(pid), timeout=15, period=0.1), "the stopped worker was never killed"
-        killed_after = time.monotonic() - t0
+        killed_after = _stop(out, "reconstruction", 0.5, stopped)
         _, err = proc.communicate(timeout=180)
     finally:
         if proc.poll() is None:
             proc.kill()
-        try:
-            os.kill(pid, signal.SIGCONT)
-        except (ProcessLookupError, TypeError):
-            pass
+        _resume(stopped)
     print("killed after", round(killed_after, 2), "s")
     assert killed_after <= 4 + 2
     assert "reconstruction is hung" in err
@@ -123,23 +136,15 @@ def test_a_stage_stopped_live_is_restarted_and_delivers_again(tmp_path):
     proc = start_smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}",
                            "--live", f"cam1={a / 'videos' / 'cam1.avi'}", "--calibration", a / "calibration.yaml",
                            "--headless", "--layout", layout, "--frames", 400, "--out", out)
+    stopped = []
     try:
-        pid = wait_for(lambda: worker_pid(out, "segmentation"), timeout=60)
-        assert pid, "segmentation never reported"
-        time.sleep(1.0)
-        os.kill(pid, signal.SIGSTOP)
-        t0 = time.monotonic()
-        assert wait_for(lambda: not running(pid), timeout=15, period=0.1), "the stopped worker was never killed"
-        killed_after = time.monotonic() - t0
-        assert wait_for(lambda: any_pid(out, "segmentation") not in (None, pid), timeout=30)
+        killed_after = _stop(out, "segmentation", 1.0, stopped)
+        assert wait_for(lambda: any_pid(out, "segmentation") not in (None, *stopped), timeout=30)
         _, err = proc.communicate(timeout=180)
     finally:
         if proc.poll() is None:
             proc.kill()
-        try:
-            os.kill(pid, signal.SIGCONT)
-        except (ProcessLookupError, TypeError):
-            pass
+        _resume(stopped)
     assert killed_after <= 3 + 2
     assert proc.returncode == 0, err
     s = stats_of(out)
