@@ -7,8 +7,6 @@ without matching two streams.
 """
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 from app.errors import InputError
@@ -40,8 +38,8 @@ class ComponentAnalysis(Worker):
         Core((4, 4, 4), (0, 0, 0), 0.1, self.tree)(np.zeros((1, 3), np.uint16))   # compile before frames flow
         self.cca = None
         self.grid_key = None
-        self.components: deque = deque(maxlen=50)   # the latest frames' counts (stats): bounded
-        self.persons: deque = deque(maxlen=50)
+        self.components: list[int] = []
+        self.persons: list[int] = []
 
     def _analysis(self, msg: Voxels):
         from app.tracking.blobs import ComponentAnalysis as Core
@@ -65,6 +63,6 @@ class ComponentAnalysis(Worker):
             colours=colours, surface=surface, labels=labels, features=feats, person=person))
 
     def extra_figures(self) -> dict:
-        c, p = list(getattr(self, "components", [])), list(getattr(self, "persons", []))
+        c, p = getattr(self, "components", [])[-50:], getattr(self, "persons", [])[-50:]
         return {"components": round(float(np.mean(c)), 1) if c else 0,
                 "person_blobs": round(float(np.mean(p)), 1) if p else 0}

@@ -57,8 +57,6 @@ run, byte for byte.
 """
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 from app.errors import InputError
@@ -179,9 +177,8 @@ class Pose(Worker):
         self.voxels: dict[int, Voxels] = {}
         self.tracks: dict[int, Tracks] = {}
         self.done = -1
-        # the latest frames' figures (stats): bounded, so weeks of frames do not grow the worker
-        self.people_counts: deque = deque(maxlen=50)
-        self.kept: deque = deque(maxlen=50)    # share of the frame's voxels posed on (consensus)
+        self.people_counts: list[int] = []
+        self.kept: list[float] = []    # share of the frame's voxels posed on (consensus)
         self.at = None                 # (epoch, frame, t, grid) of the last frame the estimator took in
         self.saved_at = None           # ... of the last snapshot saved
         self.catching = False          # restored: posing the frames put out before, unpublished
@@ -366,7 +363,7 @@ class Pose(Worker):
 
     def extra_figures(self) -> dict:
         c = getattr(self, "people_counts", [])
-        kept = list(getattr(self, "kept", []))
+        kept = getattr(self, "kept", [])[-50:]
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
                 "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
                 "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0])),

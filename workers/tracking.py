@@ -17,8 +17,6 @@ walks in the gap (:meth:`~app.tracking.tracker.MultiTracker.relocate`).
 """
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 from app.errors import InputError
@@ -79,7 +77,7 @@ class Tracking(Worker):
         self.tracker = MultiTracker(params, tree, self.ghost_test)
         self.occupancy = None
         self.grid_key = None
-        self.counts: deque = deque(maxlen=50)   # the latest frames' track counts (stats): bounded
+        self.counts: list[int] = []
         self.at = None           # (epoch, frame, t, dims) of the last frame the tracker took in
         self.saved_at = None     # ... of the last snapshot saved
         self.resumed = None      # (frame, t) of the snapshot restored, until the first frame after it
