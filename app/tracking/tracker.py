@@ -157,7 +157,7 @@ class MultiTracker:
         self._scratch = None
         #: the ghost test's view of one frame (:meth:`_ghost`): the voxels of the tracked
         #: people's components (mask) and their centres, built once a frame, dropped after it
-        self._known_frame = self._known = self._known_centres = None
+        self._known_frame = self._known = self._known_centres = self._known_counts = None
 
     # -- one frame --------------------------------------------------------------------
     def update(self, scene: SceneFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -168,7 +168,7 @@ class MultiTracker:
                 self._refine(scene)
         self._delete(scene)
         self._create(scene)
-        self._known_frame = self._known = self._known_centres = None
+        self._known_frame = self._known = self._known_centres = self._known_counts = None
         ids = np.array([t.id for t in self.tracks], dtype=np.int64)
         pos = np.array([t.target.x for t in self.tracks], dtype=np.float64).reshape(-1, 3)
         return ids, pos
@@ -442,13 +442,14 @@ class MultiTracker:
             self._known_frame = scene
             self._known = np.isin(scene.labels, np.fromiter(hosts, dtype=np.int64, count=len(hosts)))
             self._known_centres = scene.centres_at(np.nonzero(self._known)[0])
-        if self._known[mine].any():   # a piece of a tracked component: the rest of it
-            others = self._known.copy()
-            others[mine] = False
-            known = scene.centres_at(np.nonzero(others)[0])
-        else:                         # a component no track holds
-            known = self._known_centres
-        if self.ghost_test(scene.centres_at(mine), known):
+            self._known_counts = None
+        theirs = self._known[mine]
+        minus = scene.centres_at(mine[theirs]) if theirs.any() else None   # a piece of a tracked component
+        if len(self._known_centres) - (0 if minus is None else len(minus)) == 0:
+            return False                                   # nobody else: no ghost of anyone
+        if self._known_counts is None:                     # the people projected once a frame
+            self._known_counts = self.ghost_test.counts(self._known_centres)
+        if self.ghost_test.verdict(scene.centres_at(mine), self._known_counts, minus):
             self.ghosts += 1
             return True
         return False
