@@ -79,3 +79,22 @@ def test_a_person_alone_or_unseen_is_never_a_ghost():
     test = GhostTest(cameras)
     assert test(body, np.zeros((0, 3))) is False
     assert test(body + (20.0, 0.0, 0.0), body) is False    # out of every view: nothing to judge
+
+
+def test_the_cells_kernel_projects_as_the_camera_does():
+    """The ghost test's one-pass projection (issue 26) gives the cells that
+    ``Camera.project`` gives, lens distortion, points behind the camera and points
+    outside the image included."""
+    K = np.array([[520.0, 0.3, 330.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]])
+    a = np.deg2rad(25)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]) @ \
+        np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
+    cam = Camera("c", 640, 480, K, np.array([-0.21, 0.08, 0.001, -0.002, 0.01]), R, -R @ np.array([2.5, -1.0, 2.2]))
+    pts = np.random.default_rng(3).uniform((-3, -6, -1), (8, 8, 4), (50000, 3))
+    test = GhostTest([cam])
+    cells, (h, w) = test._cells(cam, pts)
+    uv = cam.project(pts) / test.cell
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    assert 1000 < ok.sum() < len(pts) - 1000 and np.isnan(uv).any()   # some in, some out, some behind
+    uv = uv[ok].astype(np.int64)
+    assert np.array_equal(cells, uv[:, 1] * w + uv[:, 0])

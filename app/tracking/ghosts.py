@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 __all__ = ["GhostTest"]
 
@@ -45,10 +46,10 @@ class GhostTest:
 
     def _cells(self, camera, centres: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
         w, h = -(-int(camera.width) // self.cell), -(-int(camera.height) // self.cell)
-        uv = camera.project(centres) / self.cell
-        ok = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)   # NaN (behind): False
-        uv = uv[ok].astype(np.int64)
-        return uv[:, 1] * w + uv[:, 0], (h, w)
+        centres = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 3)
+        out = np.empty(len(centres), np.int64)
+        n = _project_cells(centres, camera.R, camera.t, camera.K, camera.dist, float(self.cell), w, h, out)
+        return out[:n], (h, w)
 
     def counts(self, others: np.ndarray) -> list[np.ndarray]:
         """Per camera, how many of the voxels ``others`` fall in each cell (flat grids):
@@ -98,3 +99,33 @@ class GhostTest:
         if not len(seen):
             return False
         return int((seen >= self.min_own).sum()) < min(self.min_cameras, len(seen))
+
+
+@njit(cache=True, nogil=True)
+def _project_cells(points, R, t, K, dist, cell, w, h, out):
+    """The cells (``row * w + column`` of ``cell``-pixel cells) of the points (N, 3) in
+    front of the camera that project inside its image, into ``out``; how many.
+    :meth:`calibration.camera.Camera.project` (Eq. 2.5 with OpenCV's lens model) point
+    by point, in one pass: the tracker's ghost test projects every voxel of the known
+    people each frame (at 2 cm, 4.6 ms a camera through numpy's temporaries)."""
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    n = 0
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        xc = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
+        yc = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
+        zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        if not zc > 1e-9:
+            continue                      # behind the camera (project gives NaN)
+        inv = 1.0 / zc
+        xn, yn = xc * inv, yc * inv
+        r2 = xn * xn + yn * yn
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+        u = (K[0, 0] * xd + K[0, 1] * yd + K[0, 2]) / cell
+        v = (K[1, 1] * yd + K[1, 2]) / cell
+        if u >= 0.0 and u < w and v >= 0.0 and v < h:
+            out[n] = np.int64(v) * w + np.int64(u)
+            n += 1
+    return n
