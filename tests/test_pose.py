@@ -9,7 +9,7 @@ import pytest
 from app.evaluation.pose import epsilon_opt, joint_angles, point_metrics
 from app.messages import JOINTS
 from app.pose.annealing import annealing_exponent, propagate, survival_rate
-from app.pose.estimator import PoseSettings
+from app.pose.estimator import PoseEstimator, PoseSettings
 from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, N_DOF, SIGMA0, BodyModel, exp_map, neutral_state
 from app.pose.offline import clip_errors, run_clip, simulated_clip
 
@@ -297,3 +297,31 @@ def test_outer_surface_matches_a_dense_flood_fill_of_the_whole_box():
             n = idx + 1 + np.array(d)
             expected |= pad[n[:, 0], n[:, 1], n[:, 2]]
         assert np.array_equal(outer_surface_flags(idx, occ), expected), t
+
+
+def test_shards_and_threads_pose_each_person_as_one_estimator_does():
+    """Issue 26: the people of a frame posed by two estimators that share the tracks
+    (``only``: odd and even ids, as two pose workers with ``share: [k, 2]``), or by one
+    with two threads, get the poses one estimator posing everyone gives, to the bit:
+    every person draws from their own random stream, and the particle budget is shared
+    by all the people of the frame, whoever poses them (a shard that counted only its
+    own people gave each twice the particles: sharding bought nothing)."""
+    clip, cal = simulated_clip("meeting3", range(100, 106), 0.04)
+    assert all(len(fr.ids) == 3 for fr in clip)
+    base = dict(voxel_size=0.04, density=1, gamma_budget=75, room_lo=tuple(cal.room_min),
+                room_hi=tuple(cal.room_max))
+    one = PoseEstimator(PoseSettings(**base))
+    shards = [PoseEstimator(PoseSettings(**base)) for _ in range(2)]
+    threaded = PoseEstimator(PoseSettings(threads=2, **base))
+    for fr in clip:
+        args = (fr.centres, fr.surface, fr.ids, fr.positions)
+        want = one.update(*args)
+        got = {}
+        for k, est in enumerate(shards):
+            got.update(est.update(*args, only=lambda t, k=k: t % 2 == k))
+        both = threaded.update(*args)
+        assert sorted(want) == sorted(got) == sorted(both) == sorted(fr.ids)
+        for tid in want:
+            assert np.array_equal(want[tid][0], got[tid][0]) and np.array_equal(want[tid][0], both[tid][0])
+    sizes = {tid: sum(p.filter.sizes) for est in shards for tid, p in est.people.items()}
+    assert set(sizes.values()) == {25 * N_DOF}   # each shard's people: the budget of three

@@ -7,7 +7,11 @@ from the voxels); the worker keeps the last few of each by frame and poses a fra
 soon as both are in. One filter per track (:class:`app.pose.estimator.PoseEstimator`);
 each person's likelihood ignores the voxels owned by the other tracks. More people than
 one worker carries in real time is a layout matter: several pose workers, each with
-``tracks: [ids...]`` or ``share: [k, n]`` (track ids with ``id % n == k``).
+``share: [k, n]`` (the track ids with ``id % n == k``), and/or
+``threads`` (people posed in parallel within the worker: the kernels release the GIL).
+Each person draws from their own random stream and SHBM-APF's ``gamma_budget`` is shared
+by every person of the frame, whoever poses them, so the poses of a sharded or threaded
+layout are those of one worker, to the bit (``deploy/layouts/many_cores.yaml``, issue 26).
 
 ``method``: ``shbm`` (SHBM-APF, §7.3, default), ``apf`` (§6.5), ``ddm`` (APF with DDM
 limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density factor
@@ -123,6 +127,7 @@ class Pose(Worker):
         "keypoint_gate": 0.3,       # m: a keypoint's error is truncated here
         "keypoint_conf": 0.5,       # keypoints less sure than this cost nothing
         "keypoint_hands": True,     # triangulated wrists are the importance function's hands
+        "threads": 1,               # people posed in parallel by this many threads in the worker (issue 26)
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
@@ -137,7 +142,7 @@ class Pose(Worker):
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
               "keypoints": (0.0, 10.0), "keypoint_gate": (0.01, 10.0), "keypoint_conf": (0.0, 1.0),
-              "snapshot_frames": (1, 1000)}
+              "snapshot_frames": (1, 1000), "threads": (1, 64)}
 
     @classmethod
     def consumes(cls, spec) -> set[str]:

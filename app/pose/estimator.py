@@ -79,6 +79,7 @@ class PoseSettings:
     keypoint_conf: float = 0.5      # keypoints less sure than this cost nothing
     keypoint_hands: bool = True     # wrists triangulated from the keypoints are the importance function's hands
     height_frames: int = 5
+    threads: int = 1                # people posed in parallel by this many threads (the kernels release the GIL)
     seed: int = 0
     room_lo: tuple = (0.0, 0.0, 0.0)
     room_hi: tuple = (5.0, 4.0, 2.5)
@@ -294,6 +295,13 @@ class PoseEstimator:
         self.settings.validate()
         self.rng = np.random.default_rng(self.settings.seed)
 
+    def _pool(self):
+        pool = getattr(self, "_threads", None)
+        if pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+            pool = self._threads = ThreadPoolExecutor(self.settings.threads, thread_name_prefix="pose")
+        return pool
+
     def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None, keypoints=None) -> dict:
         """``{track id: (joints (15, 3), active (15,))}`` for every track with a body
         (``only``: a predicate on track ids; the others still own their voxels);
@@ -305,9 +313,14 @@ class PoseEstimator:
         owner = assign_voxels(centres, positions, self.settings.reach)
         surface = None if surface is None or len(surface) != len(centres) else np.asarray(surface, bool)
         out = {}
-        posed = [tid for tid in ids if only is None or only(tid)]
-        gamma = self.settings.shbm_gamma(len(posed)) if self.settings.method.startswith("shbm") else None
+        # the budget is shared by every person of the frame, whoever poses them: a pose worker
+        # posing its share of the tracks (``only``) gives each of its people what one worker
+        # posing everyone would (a shard that counted its own people gave each twice or three
+        # times the particles, so three shards cost what one worker did: issue 26), and the
+        # poses of the sharded and the single layouts are the same
+        gamma = self.settings.shbm_gamma(len(ids)) if self.settings.method.startswith("shbm") else None
         silhouettes = view.people(positions) if view is not None else None
+        jobs = []
         for k, tid in enumerate(ids):
             if only is not None and not only(tid):
                 continue
@@ -316,9 +329,14 @@ class PoseEstimator:
                 person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(
                     [self.settings.seed, tid]))
             mine = owner == k
-            res = person.update(centres[mine], None if surface is None else surface[mine], positions[k], gamma,
-                                None if silhouettes is None else silhouettes[k],
-                                None if keypoints is None else keypoints.get(tid))
+            jobs.append((tid, person, (centres[mine], None if surface is None else surface[mine], positions[k], gamma,
+                                       None if silhouettes is None else silhouettes[k],
+                                       None if keypoints is None else keypoints.get(tid))))
+        if self.settings.threads > 1 and len(jobs) > 1:
+            results = list(self._pool().map(lambda job: job[1].update(*job[2]), jobs))
+        else:
+            results = [person.update(*args) for _, person, args in jobs]
+        for (tid, _, _), res in zip(jobs, results):
             if res is not None:
                 out[tid] = res
         for gone in set(self.people) - set(ids):
