@@ -189,6 +189,7 @@ class StageLedger:
         self._cpu0 = (time.monotonic(), time.process_time())
         self._cpu_start = self._cpu0
         self.process_total = 0.0
+        self.cpu_total = 0.0        # CPU seconds of the process (all its threads) while handling items
         self._proc_frame = None
         self.started = clock()
         #: ``journal(kind, frame)`` is told of every frame first seen ("i") or done ("o")
@@ -228,11 +229,13 @@ class StageLedger:
             self._events.append((now, "out", lat))
             self.newest_out = max(self.newest_out, frame)
 
-    def processed(self, seconds: float, frame: int | None = None) -> None:
-        """Time spent handling one item; the items of one frame (its cameras) add up
-        to that frame's processing time."""
+    def processed(self, seconds: float, frame: int | None = None, cpu: float = 0.0) -> None:
+        """Time spent handling one item (``cpu``: the process's CPU seconds meanwhile, all
+        its threads); the items of one frame (its cameras) add up to that frame's
+        processing time."""
         self._busy.append((self.clock(), seconds))
         self.process_total += seconds
+        self.cpu_total += max(0.0, cpu)
         if frame is not None and frame == self._proc_frame and self.process_ms:
             self.process_ms[-1] += seconds * 1e3
         else:
@@ -253,7 +256,7 @@ class StageLedger:
                 "bad_messages": self.bad_messages, "last_frame": self.last_frame,
                 "newest_out": self.newest_out, "first_stamp": self.first_stamp, "first_emit": self.first_emit,
                 "last_emit": self.last_emit,
-                "process_total": self.process_total}
+                "process_total": self.process_total, "cpu_total": self.cpu_total}
 
     def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
         """Take over an earlier incarnation's :meth:`state` and the frames its journal
@@ -269,6 +272,7 @@ class StageLedger:
             if isinstance(v, (int, float)):
                 setattr(self, name, float(v))
         self.process_total = float(state.get("process_total") or 0.0)
+        self.cpu_total = float(state.get("cpu_total") or 0.0)
         for kind, frame in journal:
             if kind == "i" and self.seen.add(frame):
                 self.items_in += 1
@@ -339,6 +343,9 @@ class StageLedger:
             "busy_total": round(min(1.0, self.process_total / max(1e-6, now - (self.first_in or now))), 3)
             if self.first_in is not None else 0.0,
             "cpu_percent": round(cpu_percent, 1),
+            # CPU per frame handled (every thread of the process; start-up and idle time not
+            # counted): summed over a stage's workers it shows how well the stage scales out
+            "cpu_ms_per_frame": round(self.cpu_total * 1e3 / max(1, frames_in, frames_out), 3),
             "last_frame": self.last_frame,
             "first_stamp": self.first_stamp,
             "first_emit": self.first_emit,
@@ -406,6 +413,7 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None, sta
             "process_p95_ms": f.get("process_ms", {}).get("p95", 0.0),
             "fps": steady_fps(f, compile_spans),
             "cpu_percent": f.get("cpu_percent", 0.0),
+            "cpu_ms_per_frame": f.get("cpu_ms_per_frame", 0.0),
             "bad_messages": f.get("bad_messages", 0),
             "setup_s": f.get("setup_s"),
             "compile_s": f.get("compile_s", 0.0),

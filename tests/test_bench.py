@@ -24,9 +24,31 @@ def test_pipeline_profile_report(tiny_recording, tmp_path, spine_layout):
         assert len(seg["per_frame"]) == seg["frames_out"]
         assert seg["latency_ms"]["p95"] >= seg["latency_ms"]["p50"] > 0
         assert mode["rtf_over_time"]
+        # CPU per frame handled, summed per stage over its workers (issue 26)
+        rec = mode["by_stage"]["reconstruction"]
+        assert rec["workers"] == ["reconstruction"] and rec["cpu_ms_per_frame"] > 0
+        assert rec["cpu_ms_per_frame"] == mode["stages"]["reconstruction"]["cpu_ms_per_frame"]
     img = cv2.imread(str(out / "profile.png"))
     assert img is not None and img.shape[0] > 300 and img.shape[1] > 600
     assert "unpaced: RTF" in r.stdout and "paced: RTF" in r.stdout
+    assert "cpu ms/frame (summed)" in r.stdout
+
+
+def test_stage_figures_sum_the_cpu_of_a_stage_s_workers():
+    """``smartroom bench`` per stage: three pose shards' CPU per frame add up (how well
+    the stage scales out is that sum against one worker's); the slowest shard's process
+    time is the stage's."""
+    from app.benchmarks.pipeline import by_stage
+
+    def worker(stage, order, cpu, p50):
+        return {"stage": stage, "order": order, "cpu_ms_per_frame": cpu, "process_ms": {"p50": p50, "p95": p50}}
+
+    stages = {"pose_0": worker("pose", 5, 10.0, 12.0), "pose_1": worker("pose", 5, 11.5, 14.0),
+              "pose_2": worker("pose", 5, 9.0, 11.0), "tracking": worker("tracking", 4, 7.0, 7.5)}
+    out = by_stage(stages)
+    assert list(out) == ["tracking", "pose"]
+    assert out["pose"]["workers"] == ["pose_0", "pose_1", "pose_2"]
+    assert out["pose"]["cpu_ms_per_frame"] == 30.5 and out["pose"]["process_ms_p50"] == 14.0
 
 
 def test_sweep_tabulates_rtf_per_value(tiny_recording, tmp_path, spine_layout):

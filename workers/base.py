@@ -658,11 +658,11 @@ class Worker(Restarts):
                     continue
                 self._follow_epoch(msg)
                 self.ledger.received(msg.frame, msg.stamp)
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 self.handle(key, msg)
                 if self._killed_after_handle:   # FAILPOINT_ENV
                     os.kill(os.getpid(), signal.SIGKILL)
-                self.ledger.processed(time.perf_counter() - t0, msg.frame)
+                self.ledger.processed(time.perf_counter() - t0, msg.frame, time.process_time() - c0)
                 if self.ACK_ON_HANDLE:
                     self.finished(msg.frame)
             elif self._ended():
@@ -684,14 +684,14 @@ class Worker(Restarts):
             self._source_again()
         while not self.stopping:
             self._turned = time.monotonic()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             self._idle = 0.0
             more = self.produce()
             if more:
                 self.out_epoch = self._epoch
             if self._killed_after_handle:   # FAILPOINT_ENV
                 os.kill(os.getpid(), signal.SIGKILL)
-            self.ledger.processed(time.perf_counter() - t0 - self._idle)
+            self.ledger.processed(time.perf_counter() - t0 - self._idle, cpu=time.process_time() - c0)
             self._periodic()
             self.tick()
             if not more:

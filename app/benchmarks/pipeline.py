@@ -21,7 +21,7 @@ import numpy as np
 from app.config import Layout, RunSpec, apply_overrides
 from app.files import write_json
 
-__all__ = ["profile_run", "profile", "sweep_values", "write_figure", "summary_lines", "SWEEP_ALIASES"]
+__all__ = ["profile_run", "profile", "by_stage", "sweep_values", "write_figure", "summary_lines", "SWEEP_ALIASES"]
 
 MODES = {"unpaced": False, "paced": True}
 RTF_WINDOW_S = 1.0
@@ -87,18 +87,36 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
             "frames_in": st.get("frames_in"), "frames_out": st.get("frames_out"),
             "frames_dropped": st.get("frames_dropped"), "frames_missing": st.get("frames_missing"),
             "fps": st.get("fps"), "cpu_percent": st.get("cpu_percent"),
+            "cpu_ms_per_frame": st.get("cpu_ms_per_frame"),
             "latency_ms": {"p50": round(float(np.percentile(lat, 50)), 3), "p95": round(float(np.percentile(lat, 95)), 3)},
             "process_ms": {"p50": round(float(np.percentile(s["process_ms"], 50)), 3) if s["process_ms"].size else 0.0,
                            "p95": round(float(np.percentile(s["process_ms"], 95)), 3) if s["process_ms"].size else 0.0},
             # per frame: [frame, seconds since the first capture, latency from capture (ms)]
             "per_frame": [[int(r[0]), round(float(r[3] - t0), 4), round(float(v), 3)] for r, v in zip(rows, lat)],
         }
+    report["by_stage"] = by_stage(report["stages"])
     if limiting is not None:
         report["rtf_over_time"] = _rtf_over_time(stages[limiting]["rows"][:, 3], t0, fps_rec)
         report["final_stage"] = limiting
     report["bottleneck"] = stats.get("bottleneck")
     report["delivered_ratio"] = stats.get("delivered_ratio")
     return report
+
+
+def by_stage(stages: dict) -> dict:
+    """Per stage (its kind), over the workers that share it (pose shards, a segmentation
+    worker per camera): the workers, the CPU per frame summed over them (each worker's
+    CPU while handling frames, every thread counted, over the frames it handled: how
+    well the stage scales out is this sum against one worker's) and the slowest
+    worker's process time p50 (what holds the stage's frame)."""
+    out: dict = {}
+    for name, s in stages.items():
+        g = out.setdefault(s["stage"], {"workers": [], "cpu_ms_per_frame": 0.0, "process_ms_p50": 0.0,
+                                        "order": s["order"]})
+        g["workers"].append(name)
+        g["cpu_ms_per_frame"] = round(g["cpu_ms_per_frame"] + float(s.get("cpu_ms_per_frame") or 0.0), 3)
+        g["process_ms_p50"] = max(g["process_ms_p50"], float(s["process_ms"]["p50"]))
+    return dict(sorted(out.items(), key=lambda kv: kv[1]["order"]))
 
 
 def profile(layout: Layout, run: RunSpec, out: Path, modes=("unpaced", "paced"), progress=True) -> dict:
@@ -155,6 +173,11 @@ def summary_lines(result: dict) -> list[str]:
             lines.append(f"  {name:<16}{s['frames_in'] or 0:>6}{s['frames_out'] or 0:>6}{s['frames_dropped'] or 0:>6}"
                          f"{s['fps'] or 0:>7.1f}{s['latency_ms']['p50']:>7.1f}ms{s['latency_ms']['p95']:>7.1f}ms"
                          f"{s['process_ms']['p50']:>8.1f}ms{s['process_ms']['p95']:>8.1f}ms{s['cpu_percent'] or 0:>6.0f}")
+        groups = r.get("by_stage") or {}
+        lines.append(f"  {'per stage':<16}{'workers':>8}{'cpu ms/frame (summed)':>23}{'slowest proc p50':>18}")
+        for stage, g in groups.items():
+            lines.append(f"  {stage:<16}{len(g['workers']):>8}{g['cpu_ms_per_frame']:>21.1f}ms"
+                         f"{g['process_ms_p50']:>16.1f}ms")
     return lines
 
 
