@@ -189,6 +189,8 @@ class Pose(Worker):
         self.catching = False          # restored: posing the frames put out before, unpublished
         from app.pose.model import BodyModel
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
+        from app.pose.estimator import assign_voxels
+        assign_voxels(np.zeros((1, 3)), np.zeros((1, 3)), 1.0)
         if self.settings.silhouette > 0:
             from app.pose.silhouette import warm_up
             warm_up()

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-__all__ = ["GhostTest"]
+__all__ = ["GhostTest", "warm_up"]
 
 
 class GhostTest:
@@ -129,3 +129,9 @@ def _project_cells(points, R, t, K, dist, cell, w, h, out):
             out[n] = np.int64(v) * w + np.int64(u)
             n += 1
     return n
+
+
+def warm_up() -> None:
+    """Compile (or load) the projection kernel before the first frame."""
+    out = np.empty(1, np.int64)
+    _project_cells(np.ones((1, 3)), np.eye(3), np.zeros(3), np.eye(3), np.zeros(5), 8.0, 4, 4, out)

@@ -549,3 +549,5 @@ def warm_up() -> None:
         tracker = MultiTracker(TrackerParams(filter=name, samples=20, particles=10, confirm_frames=1))
         for f in range(3):
             tracker.update(SceneFrame(f, 0.0, idx, colours, surface, labels, feats, person, (0, 0, 0), 0.1, occ))
+    from app.tracking.ghosts import warm_up as ghosts_warm_up
+    ghosts_warm_up()
