@@ -32,6 +32,7 @@ import yaml
 from app.bus import BusConfig
 from app.bus_section import parse_bus
 from app.files import read_yaml
+from app.frame_shares import stage_shares
 from app.layout import Layout, LayoutError, RunSpec, WorkerSpec
 
 __all__ = ["LayoutError", "WorkerSpec", "RunSpec", "Layout", "load_layout", "parse_layout",
@@ -149,6 +150,11 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
                                   restart=bool(e.get("restart", True))))
     if not any(not worker_class(w.kind).CONSUMES for w in workers):
         raise LayoutError(f"{path}: no source: the layout needs a worker that produces frames (kind: grabber)")
+    for kind in sorted({w.kind for w in workers if worker_class(w.kind).FRAME_SHARES}):
+        try:   # the workers of a stage that scales out by frame: every frame has exactly one of them
+            stage_shares([w for w in workers if w.kind == kind], path)
+        except ValueError as exc:
+            raise LayoutError(str(exc)) from None
     return Layout(room=room, bus=bus, workers=workers, run=_run_spec(data.get("run"), path), path=path,
                   restarts=_restarts(data.get("restarts"), path))
 

@@ -66,6 +66,7 @@ from app.bus import BusConfig, Keys, Publisher, decode_sample, free_port, open_s
 from app.config import Layout
 from app.errors import InputError
 from app.files import write_json
+from app.frame_shares import count_own
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
 from app.hosts import PEER_TIMEOUT_S, Hosts, host_label
@@ -506,6 +507,7 @@ class Launcher:
         fps = self.layout.run.fps or 0.0
         source = next((self.eos[p.name] for p in self.procs if p.source and p.name in self.eos), None)
         expected = source.frames if source is not None else None
+        first = source.first if source is not None else 0
         out = summarise(stages, fps, expected, started=self.started, paced=bool(self.layout.run.pace))
         restarts = {p.name: p.restarts for p in self.procs}
         for name, s in out["stages"].items():
@@ -513,7 +515,8 @@ class Launcher:
             s["frames_expected"] = expected
             if final and expected is not None and not s["final"]:
                 # it never sent its final figures (killed, hung): what it never received is missing
-                s["frames_missing"] = max(s["frames_missing"], expected - s["frames_in"])
+                own = count_own(tuple(s["frame_share"]) if s.get("frame_share") else None, first, expected)
+                s["frames_missing"] = max(s["frames_missing"], own - s["frames_in"])
         out["workers"] = {name: st["figures"] for name, st in stages.items()}
         if final:
             reasons = list(self.reasons) + self._stream_errors() + self._frames_passed()

@@ -54,6 +54,12 @@ class StageRow:
     age_s: float
     frames_out: int = 0   # put out since the stage started
     compiled_ago_s: float | None = None   # since its last kernel compile ended (0: compiling now)
+    shares: int = 1       # one of this many workers taking the frames in turn (app.frame_shares)
+
+    @property
+    def stage_fps(self) -> float:
+        """The rate of the stage it is part of (a worker taking one frame in n: n times its own)."""
+        return self.fps_out * self.shares
 
     @property
     def processing(self) -> bool:
@@ -104,7 +110,8 @@ class PipelineView:
                 missing=f.get("frames_missing", 0) if final else f.get("frames_lost", 0),
                 cpu=f.get("cpu_percent", 0.0), busy=f.get("busy_total" if final else "busy", 0.0),
                 final=final, age_s=now - seen, frames_out=int(f.get("frames_out", 0) or 0),
-                compiled_ago_s=_compiled_ago(f, now)))
+                compiled_ago_s=_compiled_ago(f, now),
+                shares=int(f["frame_share"][1]) if isinstance(f.get("frame_share"), list) else 1))
             if rows[-1].silent:   # its last figures are old: it does not run at them now
                 rows[-1].fps_in = rows[-1].fps_out = 0.0
         rows.sort(key=lambda r: (r.order is None, r.order or 0, r.name))
@@ -118,7 +125,7 @@ class PipelineView:
     def limiting(self, rows=None) -> StageRow | None:
         """The processing stage with the lowest output rate (ties: the deepest)."""
         procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
-        return min(procs, key=lambda r: (r.fps_out, -r.order)) if procs else None
+        return min(procs, key=lambda r: (r.stage_fps, -r.order)) if procs else None
 
     def rtf(self, rows=None) -> float | None:
         """None while no frame has gone through yet (start-up: "waiting")."""
@@ -134,7 +141,7 @@ class PipelineView:
         if any(r.compiled_ago_s is not None and r.compiled_ago_s < COMPILE_SETTLE_S and not r.final
                for r in rows if r.processing):
             return None
-        return last.fps_out / self.recording_fps
+        return last.stage_fps / self.recording_fps
 
     def bottleneck(self, rows=None) -> StageRow | None:
         """The busiest processing stage (ties: the one that drops more, then the one that puts
@@ -142,7 +149,7 @@ class PipelineView:
         procs = [r for r in (rows if rows is not None else self.rows()) if r.processing]
         if not procs:
             return None
-        return max(procs, key=lambda r: (r.silent, round(r.busy, 2), r.dropped, -r.fps_out))
+        return max(procs, key=lambda r: (r.silent, round(r.busy, 2), r.dropped, -r.stage_fps))
 
     def tracks(self) -> int | None:
         """People tracked now (the ``tracks`` figure of the tracking stage), or None."""

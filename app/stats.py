@@ -24,6 +24,8 @@ from collections import deque
 
 import numpy as np
 
+from app.frame_shares import count_own, owns
+
 __all__ = ["StageLedger", "FrameSet", "summarise", "steady_fps", "percentiles"]
 
 WINDOW_S = 2.0
@@ -298,9 +300,12 @@ class StageLedger:
         a = np.frombuffer(values, dtype=np.float64) if len(values) else np.zeros(0)
         return a if final else a[-RECENT:]
 
-    def figures(self, final: bool = False, expected: int | None = None, first: int = 0) -> dict:
+    def figures(self, final: bool = False, expected: int | None = None, first: int = 0,
+                share: tuple[int, int] | None = None) -> dict:
         """The stage's figures now; ``expected`` frames from ``first`` (the source's count)
-        turns never-received frames into ``frames_missing``."""
+        turns never-received frames into ``frames_missing``; ``share`` ``(k, n)``: the
+        worker takes only the frames with ``frame % n == k`` (:mod:`app.frame_shares`),
+        the others are not its missing frames."""
         now = self.clock()
         self._trim(now)
         span = min(WINDOW_S, max(1e-6, now - self.started))
@@ -323,9 +328,10 @@ class StageLedger:
             "frames_in": frames_in,
             "frames_out": frames_out,
             "frames_dropped": max(0, dropped),
-            "frames_missing": max(0, expected - frames_in) if (final and expected is not None) else 0,
+            "frames_missing": max(0, count_own(share, first, expected) - frames_in)
+            if (final and expected is not None) else 0,
             # while running: frames before the newest one received that never arrived
-            "frames_lost": max(0, self.last_frame + 1 - first - frames_in) if frames_in else 0,
+            "frames_lost": max(0, count_own(share, first, self.last_frame + 1 - first) - frames_in) if frames_in else 0,
             "items_in": self.items_in,
             "items_out": self.items_out,
             "items_dropped": self.items_dropped,
@@ -355,7 +361,9 @@ class StageLedger:
             "host": os.uname().nodename,
         }
         if final:
-            fig["missing_frames"] = self.seen.missing(first, first + (expected or 0))
+            n = 1 if share is None else share[1]
+            fig["missing_frames"] = [f for f in self.seen.missing(first, first + (expected or 0), limit=50 * n)
+                                     if owns(share, f)][:50]
             fig["dropped_frames"] = [i for i in range(self.seen.base, self.seen.end)
                                      if i in self.seen and i not in self.done][:50]
         return fig
@@ -419,10 +427,15 @@ def summarise(stages: dict, recording_fps: float, frames: int | None = None, sta
             "compile_s": f.get("compile_s", 0.0),
             "final": bool(s.get("final", False)),
         }
+        if isinstance(f.get("frame_share"), list):   # one of n workers taking the frames in turn
+            per_stage[name]["frame_share"] = f["frame_share"]
     out = {"recording_fps": recording_fps, "frames": frames, "stages": per_stage}
     procs = [n for n, s in per_stage.items() if s["order"] is not None]
     if procs:
-        slowest = min(procs, key=lambda n: (per_stage[n]["fps"], -per_stage[n]["order"]))
+        def rate(n):   # a worker taking one frame in k carries k times its own rate
+            share = per_stage[n].get("frame_share")
+            return per_stage[n]["fps"] * (share[1] if share else 1)
+        slowest = min(procs, key=lambda n: (rate(n), -per_stage[n]["order"]))
         deepest = max(procs, key=lambda n: per_stage[n]["order"])
         fps = per_stage[deepest]["fps"]
         delivered = per_stage[deepest]["frames_out"]

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from app.admission import FrameWindow, Rejections
+from app.frame_shares import FrameOrder, frame_share, owns, stage_shares
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.compiles import CompileClock
 from app.files import write_json
@@ -152,6 +153,9 @@ class Worker(Restarts):
     #: a restarted worker skips the frames its earlier incarnation put out (False: a sink
     #: that knows per output what it has, the recorder)
     SKIPS_FINISHED: ClassVar[bool] = True
+    #: several workers of the kind may take the frames in turn (``share: [k, n]``,
+    #: :mod:`app.frame_shares`): a stateless stage that scales out by frame
+    FRAME_SHARES: ClassVar[bool] = False
 
     def __init__(self, spec: WorkerSpec, layout: Layout):
         self.spec = spec
@@ -195,7 +199,26 @@ class Worker(Restarts):
         self.compiles = CompileClock(on_start=self._compiling)   # numba kernels compiled in this process
         self._said_compiling = 0.0
         self.setup_s: float | None = None
+        #: (k, n): this worker takes the frames with frame % n == k (app.frame_shares)
+        self.frame_share = frame_share(self.params) if self.FRAME_SHARES else None
+        self._orders = self._frame_orders()   # key -> FrameOrder: inputs from workers sharing their frames
         self._init_restarts()
+
+    def _frame_orders(self) -> dict:
+        """A :class:`~app.frame_shares.FrameOrder` per consumed key whose producers share
+        their frames (their outputs interleave; this worker takes them in frame order)."""
+        from workers import producers_of, worker_class
+
+        orders = {}
+        for stage in self.consumes(self.spec):
+            if stage in self.PER_CAMERA or stage == "stats":
+                continue
+            specs = [self.layout.worker(n) for n in producers_of(self.layout, stage)]
+            if specs and all(worker_class(w.kind).FRAME_SHARES for w in specs):
+                shares = stage_shares(specs)
+                if shares:
+                    orders[self.keys.stage(stage)] = FrameOrder(next(iter(shares.values()))[1])
+        return orders
 
     # -- what subclasses provide ------------------------------------------------------
     @property
@@ -495,6 +518,8 @@ class Worker(Restarts):
         bounded inbox (a flood of junk on a key used to push real frames out of it)."""
         key = str(sample.key_expr)
         msg = self._valid(key, sample)
+        if msg is not None and not owns(self.frame_share, msg.frame):
+            return            # another worker's frame (share): not this worker's input
         if msg is not None and not self.inbox.put(key, msg):
             self.reject(key, "too many keys")
 
@@ -592,7 +617,10 @@ class Worker(Restarts):
     def _figures(self, final: bool = False) -> dict:
         frames, first, _ = self.stream_info()
         known = self._source_eos is not None or self.is_source
-        figures = self.ledger.figures(final=final, expected=frames if known else None, first=first)
+        figures = self.ledger.figures(final=final, expected=frames if known else None, first=first,
+                                      share=self.frame_share)
+        if self.frame_share is not None:
+            figures["frame_share"] = list(self.frame_share)
         figures["order"] = self.ORDER
         figures["restarts"] = self.incarnation
         figures["resent"] = self.resent
@@ -656,20 +684,29 @@ class Worker(Restarts):
                 msg = self._admit(key, msg)
                 if msg is None or self._repeated(key, msg):
                     continue
-                self._follow_epoch(msg)
-                self.ledger.received(msg.frame, msg.stamp)
-                t0, c0 = time.perf_counter(), time.process_time()
-                self.handle(key, msg)
-                if self._killed_after_handle:   # FAILPOINT_ENV
-                    os.kill(os.getpid(), signal.SIGKILL)
-                self.ledger.processed(time.perf_counter() - t0, msg.frame, time.process_time() - c0)
-                if self.ACK_ON_HANDLE:
-                    self.finished(msg.frame)
+                order = self._orders.get(key)
+                for key, msg in [(key, msg)] if order is None else order.add(key, msg):
+                    self._take(key, msg)
             elif self._ended():
+                for order in self._orders.values():   # what waited for frames before it that never came
+                    for key, msg in order.flush():
+                        self._take(key, msg)
                 self.input_ended = True
                 break
             self._periodic()
             self.tick()
+
+    def _take(self, key: str, msg: Message) -> None:
+        """One admitted input, handled and counted."""
+        self._follow_epoch(msg)
+        self.ledger.received(msg.frame, msg.stamp)
+        t0, c0 = time.perf_counter(), time.process_time()
+        self.handle(key, msg)
+        if self._killed_after_handle:   # FAILPOINT_ENV
+            os.kill(os.getpid(), signal.SIGKILL)
+        self.ledger.processed(time.perf_counter() - t0, msg.frame, time.process_time() - c0)
+        if self.ACK_ON_HANDLE:
+            self.finished(msg.frame)
 
     def _follow_epoch(self, msg: Message) -> None:
         if msg.epoch != self._epoch:

@@ -45,6 +45,7 @@ import threading
 import time
 
 from app.errors import Stalled
+from app.frame_shares import frame_share, last_own
 from workers.restarts import REPLAY_DELAY_S
 
 __all__ = ["FlowControl", "SourceFlow", "MISSING_WAIT_S", "RESUME_HOLD_S", "NOTE_PERIOD_S"]
@@ -61,8 +62,9 @@ class FlowControl:
     until nobody does (or raises :class:`Stalled`)."""
 
     def __init__(self, stages: list[str], upstream: dict[str, list[str]], keepers: list[str], window: int,
-                 stall_timeout_s: float, clock=time.monotonic, log=None):
+                 stall_timeout_s: float, clock=time.monotonic, log=None, shares: dict | None = None):
         self.stages = list(stages)          # workers that acknowledge frames
+        self.shares = dict(shares or {})    # worker -> (k, n): it takes the frames with frame % n == k
         self.upstream = {n: list(upstream.get(n, ())) for n in self.stages}
         self.keepers = list(keepers)        # sinks that keep results: waited for while away
         self.window = int(window)
@@ -99,7 +101,9 @@ class FlowControl:
     # -- the rules -------------------------------------------------------------------
     def required(self, name: str, need: int) -> int:
         """The frame ``name`` must have finished: ``need``, or less when a stage before it
-        has put out nothing that recent (it gave those frames up) (rule 3)."""
+        has put out nothing that recent (it gave those frames up) (rule 3); a worker that
+        takes the frames in turn with others, its newest frame up to ``need``."""
+        need = last_own(self.shares.get(name), need)
         for u in self.upstream.get(name, ()):
             need = min(need, self.outs.get(u, -1))
         return need
@@ -202,7 +206,14 @@ class SourceFlow:
         keepers = [w.name for w in layout.workers
                    if worker_class(w.kind).KEEPS_RESULTS and w.name not in stages]
         upstream = {n: [u for u in upstream_of(layout, layout.worker(n)) if u in stages] for n in stages}
-        self.control = FlowControl(stages, upstream, keepers, window, stall_timeout_s, log=worker.log)
+        shares = {n: frame_share(layout.worker(n).params) for n in stages
+                  if worker_class(layout.worker(n).kind).FRAME_SHARES and frame_share(layout.worker(n).params)}
+        if shares and window < max(n for _, n in shares.values()):
+            worker.log.warning("window %d is less than the %d workers taking the frames in turn: they work one "
+                               "at a time (set the grabber's window to at least that)", window,
+                               max(n for _, n in shares.values()))
+        self.control = FlowControl(stages, upstream, keepers, window, stall_timeout_s, log=worker.log,
+                                   shares=shares)
         self._sub = None
 
     def ready(self, first: int) -> float:

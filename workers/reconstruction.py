@@ -13,7 +13,9 @@ delivered, except cameras whose segmentation worker has left the bus (crashed):
   silence); every view given up is counted per camera (``late``).
 
 A frame with fewer than ``min_views`` cameras is dropped and counted, never published
-empty. Each published frame names the cameras it was built from (``Voxels.cameras``).
+empty. Several reconstruction workers may take the frames in turn (``share: [k, n]``,
+:mod:`app.frame_shares`): the stage holds no state from frame to frame (except learnt
+occluders, which are refused with a share). Each published frame names the cameras it was built from (``Voxels.cameras``).
 The projection tables are built at start-up for the mask and colour sizes the
 layout's segmentation workers produce, so the first frame is as fast as the others.
 """
@@ -42,6 +44,7 @@ class Reconstruction(Worker):
     ACCEPTS = (Mask,)
     INBOX_DEPTH = 4   # per camera: a few frames to assemble complete sets
     ACK_ON_HANDLE = False   # a frame is finished when reconstructed or given up
+    FRAME_SHARES = True     # share: [k, n]: several workers take the frames in turn (app.frame_shares)
     DEFAULTS = {
         "voxel_size": 0.04,          # metres (0.02 .. 0.15)
         "tolerance": PIPELINE_CARVING["tolerance"],   # k: cameras that may miss an occupied voxel (§2.2.4)
@@ -69,6 +72,8 @@ class Reconstruction(Worker):
                                      # covers, in every camera, under this; app/reconstruction/ghosts.py); 0 = keep all
         "misses": True,              # per voxel, the cameras that call it background (Voxels.misses; the
                                      # k = 0 subset of the hull for the pose stage, app.reconstruction.consensus)
+        "share": None,               # [k, n]: this worker reconstructs the frames with frame % n == k, other
+                                     # workers the others (a many-core host, issue 26; app.frame_shares)
         "silhouettes": SILHOUETTE_FACTOR,  # 2: the frame's masks go with the voxels, reduced by this factor (the
                                      # pose stage's silhouette term, app.pose.silhouette; 160x120 at 2 cm, 80x60 at
                                      # 4 cm from 640x480 cameras: 2.4 / 0.6 kB a camera); 0 = not sent
@@ -95,6 +100,9 @@ class Reconstruction(Worker):
         else:
             raise InputError("reconstruction needs a recording or a calibration")
         p = self.params
+        if self.frame_share is not None and p["occlusion"] != "none":
+            raise InputError(f"reconstruction: occlusion {p['occlusion']} learns over every frame of the run: "
+                             "not with share (each worker sees only its frames)")
         if not 0.005 <= p["voxel_size"] <= 0.5:
             raise InputError(f"reconstruction: voxel_size {p['voxel_size']} m is outside 0.005 .. 0.5 m")
         cells = VoxelGrid.from_room(calib.room_min, calib.room_max, p["voxel_size"]).n_voxels
