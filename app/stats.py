@@ -191,7 +191,10 @@ class StageLedger:
         self._cpu0 = (time.monotonic(), time.process_time())
         self._cpu_start = self._cpu0
         self.process_total = 0.0
-        self.cpu_total = 0.0        # CPU seconds of the process (all its threads) while handling items
+        # the process's CPU (all its threads: zenoh's decoding its input too) from its first
+        # input to its last output, earlier incarnations' added: what the stage costs a frame
+        self.cpu_carried = 0.0
+        self._cpu_from = self._cpu_to = None
         self._proc_frame = None
         self.started = clock()
         #: ``journal(kind, frame)`` is told of every frame first seen ("i") or done ("o")
@@ -203,6 +206,8 @@ class StageLedger:
         self.items_in += 1
         if self.first_in is None:
             self.first_in = now
+        if self._cpu_from is None:
+            self._cpu_from = time.process_time()
         if stamp and (self.first_stamp is None or stamp < self.first_stamp):
             self.first_stamp = stamp
         if self.seen.add(frame):
@@ -232,12 +237,15 @@ class StageLedger:
             self.newest_out = max(self.newest_out, frame)
 
     def processed(self, seconds: float, frame: int | None = None, cpu: float = 0.0) -> None:
-        """Time spent handling one item (``cpu``: the process's CPU seconds meanwhile, all
-        its threads); the items of one frame (its cameras) add up to that frame's
-        processing time."""
+        """Time spent handling one item (``cpu``: the process's CPU seconds meanwhile: a
+        source's CPU is counted from its first item's start); the items of one frame (its
+        cameras) add up to that frame's processing time."""
         self._busy.append((self.clock(), seconds))
         self.process_total += seconds
-        self.cpu_total += max(0.0, cpu)
+        cpu_now = time.process_time()
+        if self._cpu_from is None:            # a source: from its first frame's start
+            self._cpu_from = cpu_now - max(0.0, cpu)
+        self._cpu_to = cpu_now
         if frame is not None and frame == self._proc_frame and self.process_ms:
             self.process_ms[-1] += seconds * 1e3
         else:
@@ -260,6 +268,13 @@ class StageLedger:
                 "last_emit": self.last_emit,
                 "process_total": self.process_total, "cpu_total": self.cpu_total}
 
+    @property
+    def cpu_total(self) -> float:
+        """CPU seconds of the process from its first input to its last output (every
+        incarnation)."""
+        here = self._cpu_to - self._cpu_from if self._cpu_from is not None and self._cpu_to is not None else 0.0
+        return self.cpu_carried + max(0.0, here)
+
     def restore(self, state: dict, journal: list[tuple[str, int]] = ()) -> None:
         """Take over an earlier incarnation's :meth:`state` and the frames its journal
         recorded after that state was saved."""
@@ -274,7 +289,7 @@ class StageLedger:
             if isinstance(v, (int, float)):
                 setattr(self, name, float(v))
         self.process_total = float(state.get("process_total") or 0.0)
-        self.cpu_total = float(state.get("cpu_total") or 0.0)
+        self.cpu_carried = float(state.get("cpu_total") or 0.0)
         for kind, frame in journal:
             if kind == "i" and self.seen.add(frame):
                 self.items_in += 1
@@ -349,8 +364,9 @@ class StageLedger:
             "busy_total": round(min(1.0, self.process_total / max(1e-6, now - (self.first_in or now))), 3)
             if self.first_in is not None else 0.0,
             "cpu_percent": round(cpu_percent, 1),
-            # CPU per frame handled (every thread of the process; start-up and idle time not
-            # counted): summed over a stage's workers it shows how well the stage scales out
+            # CPU per frame (every thread of the process, from its first input to its last
+            # output; start-up not counted): summed over a stage's workers it shows how well
+            # the stage scales out
             "cpu_ms_per_frame": round(self.cpu_total * 1e3 / max(1, frames_in, frames_out), 3),
             "last_frame": self.last_frame,
             "first_stamp": self.first_stamp,

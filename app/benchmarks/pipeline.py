@@ -106,8 +106,8 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
 def by_stage(stages: dict) -> dict:
     """Per stage (its kind), over the workers that share it (pose shards, a segmentation
     worker per camera): the workers, the CPU per frame summed over them (each worker's
-    CPU while handling frames, every thread counted, over the frames it handled: how
-    well the stage scales out is this sum against one worker's) and the slowest
+    process CPU from its first input to its last output, every thread counted, over the
+    frames it handled: how well the stage scales out is this sum against one worker's) and the slowest
     worker's process time p50 (what holds the stage's frame)."""
     out: dict = {}
     for name, s in stages.items():
