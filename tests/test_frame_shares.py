@@ -96,3 +96,28 @@ def test_the_flow_control_asks_of_a_shard_only_its_own_frames():
         flow.acknowledge(worker, frame, frame)
     assert flow.blockers(10, {"rec_a", "rec_b", "cca"}, 0.0) == []   # frame 8: rec_a's; rec_b's newest is 7
     assert flow.blockers(11, {"rec_a", "rec_b", "cca"}, 0.0) == ["rec_b"]   # 9 is rec_b's; cca waits for it
+
+
+def test_stats_json_counts_a_shard_s_own_frames_and_its_stage_s_rate():
+    """A worker with share [1, 2] of a 10-frame stream that got its 5 frames misses
+    nothing; one that got 4 misses frame 7 only; summed, the two run at their stage's rate
+    and are not the bottleneck."""
+    from app.stats import StageLedger, summarise
+
+    ledger = StageLedger()
+    for f in (1, 3, 5, 9):
+        ledger.received(f, 0.0)
+        ledger.emitted(f, 0.0)
+    fig = ledger.figures(final=True, expected=10, first=0, share=(1, 2))
+    assert fig["frames_missing"] == 1 and fig["missing_frames"] == [7]
+    ledger.received(7, 0.0)
+    assert ledger.figures(final=True, expected=10, first=0, share=(1, 2))["frames_missing"] == 0
+
+    def stage(order, fps, share=None):
+        f = {"frames_in": 10, "frames_out": 10, "fps": fps}
+        if share:
+            f["frame_share"] = share
+        return {"stage": "s", "order": order, "figures": f}
+
+    out = summarise({"rec_a": stage(2, 12.0, [0, 2]), "rec_b": stage(2, 12.5, [1, 2]), "pose": stage(5, 20.0)}, 25.0)
+    assert out["bottleneck"] == "pose" and out["stages"]["rec_a"]["frame_share"] == [0, 2]

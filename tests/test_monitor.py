@@ -28,6 +28,18 @@ def test_view_rtf_verdict_and_bottleneck():
     assert "BEHIND (50% OF REAL TIME)" in table and "bottleneck: reconstruction" in table
 
 
+def test_workers_taking_the_frames_in_turn_carry_the_rate_of_their_stage():
+    """Two reconstruction workers with share [k, 2] (issue 26) each put out 12.5 frames a
+    second: the stage runs at 25, in real time, and neither is the limit."""
+    view = PipelineView()
+    view.update(_stats("grabber", 0, 25.0, 0.05, fps_recording=25.0))
+    view.update(_stats("rec_a", 2, 12.5, 0.6, frame_share=[0, 2]))
+    view.update(_stats("rec_b", 2, 12.5, 0.6, frame_share=[1, 2]))
+    view.update(_stats("pose", 5, 24.0, 0.96))
+    assert view.rtf() == pytest.approx(24.0 / 25.0)
+    assert view.limiting().name == "pose" and view.bottleneck().name == "pose"
+
+
 def test_view_waits_until_frames_flow():
     view = PipelineView()
     view.update(_stats("grabber", 0, 0.0, 0.0, fps_recording=25.0))
