@@ -59,3 +59,25 @@ def test_epochs_order_frames_and_waiting_frames_are_bounded():
         a.add("voxels", _msg(f, epoch=2), 0.2)
         a.add("tracks", _msg(f - 1, epoch=2), 0.2)
     assert len(a.frames) <= 4
+
+
+def test_at_the_start_a_frame_waits_for_the_kinds_of_the_layout_not_heard_of_yet():
+    """The first voxels arrive before any tracks ever came: the frame waits for the
+    layout's tracks and poses (a first frame drawn with voxels only was seen), but not
+    for ever: a kind still missing ``first_wait_s`` after the stream began is not waited for."""
+    from types import SimpleNamespace
+
+    from app.viewer.frames import FrameAssembly
+
+    a = FrameAssembly(wait_s=2.0, layout_kinds=("voxels", "tracks", "poses"), first_wait_s=10.0)
+    part = lambda f: SimpleNamespace(frame=f, epoch=1)   # noqa: E731
+    a.add("voxels", part(0), 0.0)
+    assert a.take(0.5) is None and a.take(2.5) is None          # tracks and poses never came yet: it waits
+    a.add("tracks", part(0), 3.0)
+    a.add("poses", part(0), 3.1)
+    key, parts = a.take(3.2)
+    assert key == (1, 0) and sorted(parts) == ["poses", "tracks", "voxels"]
+    b = FrameAssembly(wait_s=2.0, layout_kinds=("voxels", "tracks", "poses"), first_wait_s=10.0)
+    b.add("voxels", part(0), 0.0)
+    b.add("voxels", part(1), 10.5)
+    assert b.take(10.6)[0] == (1, 1)                              # a stage that never came: drawn without it

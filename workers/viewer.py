@@ -31,7 +31,7 @@ from app.errors import InputError
 from app.messages import Keypoints, Poses, Stats, Tracks, Voxels
 from app.monitor import REAL_TIME, PipelineView
 from app.pose_shares import SharedKeypoints, SharedPoses
-from app.viewer.frames import FrameAssembly
+from app.viewer.frames import KINDS as PARTS, FrameAssembly
 from app.viewer.scene import LIVE, Scene
 from app.viewer.server import MeshcatServer, ServerError
 from workers import producers_of
@@ -78,7 +78,8 @@ class Viewer(Worker):
         self.server = self._serve(p["bind"], p["port"] or getattr(self, "_earlier_port", 0))
         self.pipeline = PipelineView(self.layout.run.fps)
         self.period = 1.0 / p["max_rate"]
-        self.assembly = FrameAssembly(p["wait_s"])
+        kinds = [k for k in PARTS if producers_of(self.layout, k)]   # what the layout's stages make
+        self.assembly = FrameAssembly(p["wait_s"], layout_kinds=kinds)
         # several pose workers share a frame's people: their poses are joined first
         self.shares = SharedPoses(producers_of(self.layout, "poses"), max_pending=8)
         self.keypoint_shares = SharedKeypoints(producers_of(self.layout, "keypoints"), max_pending=8)
