@@ -207,11 +207,12 @@ class SourceFlow:
                    if worker_class(w.kind).KEEPS_RESULTS and w.name not in stages]
         upstream = {n: [u for u in upstream_of(layout, layout.worker(n)) if u in stages] for n in stages}
         shares = {n: frame_share(layout.worker(n).params) for n in stages
-                  if worker_class(layout.worker(n).kind).FRAME_SHARES and frame_share(layout.worker(n).params)}
-        if shares and window < max(n for _, n in shares.values()):
+                  if worker_class(layout.worker(n).kind).FRAME_SHARES}
+        shares = {n: s for n, s in shares.items() if s is not None}
+        most = max((n for _, n in shares.values()), default=1)
+        if window < most:
             worker.log.warning("window %d is less than the %d workers taking the frames in turn: they work one "
-                               "at a time (set the grabber's window to at least that)", window,
-                               max(n for _, n in shares.values()))
+                               "at a time (set the grabber's window to at least that)", window, most)
         self.control = FlowControl(stages, upstream, keepers, window, stall_timeout_s, log=worker.log,
                                    shares=shares)
         self._sub = None

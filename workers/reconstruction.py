@@ -13,9 +13,10 @@ delivered, except cameras whose segmentation worker has left the bus (crashed):
   silence); every view given up is counted per camera (``late``).
 
 A frame with fewer than ``min_views`` cameras is dropped and counted, never published
-empty. Several reconstruction workers may take the frames in turn (``share: [k, n]``,
+empty. Each published frame names the cameras it was built from (``Voxels.cameras``).
+Several reconstruction workers may take the frames in turn (``share: [k, n]``,
 :mod:`app.frame_shares`): the stage holds no state from frame to frame (except learnt
-occluders, which are refused with a share). Each published frame names the cameras it was built from (``Voxels.cameras``).
+occluders, which are refused with a share).
 The projection tables are built at start-up for the mask and colour sizes the
 layout's segmentation workers produce, so the first frame is as fast as the others.
 """
