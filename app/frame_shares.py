@@ -90,7 +90,6 @@ class FrameOrder:
         self.max_pending = int(max_pending)
         self.newest: dict[int, int] = {}        # shard (frame % n) -> newest frame it sent
         self.pending: dict[int, list] = {}      # frame -> [(key, msg), ...]
-        self.released = -1                      # the newest frame handed on
         self.forced = 0                         # frames handed on before the frames before them (live)
         self.epoch = None
 
@@ -116,9 +115,7 @@ class FrameOrder:
                 out += self.pending.pop(frame)
             else:
                 break
-            self.released = max(self.released, frame)
         return out
 
     def flush(self) -> list:
-        out = [item for f in sorted(self.pending) for item in self.pending.pop(f)]
-        return out
+        return [item for f in sorted(self.pending) for item in self.pending.pop(f)]
