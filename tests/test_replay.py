@@ -142,44 +142,36 @@ def _stop(proc):
             proc.wait()
 
 
-def _chromium_run(chromium, url, profile, args, tries=3, timeout=60):
-    """Headless Chromium (software WebGL, as in the viewer test) on ``url``; stdout. Tried
-    again with a fresh profile when Chromium stalls, seen now and then on a loaded machine
-    (with other Chromium instances running) whatever the page."""
-    import os
-    import signal
-    for n in range(tries):
-        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
-               "--enable-unsafe-swiftshader", "--disable-background-networking", "--disable-component-update",
-               "--disable-sync", "--disable-extensions", "--no-first-run", "--hide-scrollbars",
-               f"--user-data-dir={profile}-{n}", "--window-size=800,600", "--virtual-time-budget=2500", *args, url]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-        try:
-            out, err = proc.communicate(timeout=timeout)
-            return out
-        except subprocess.TimeoutExpired:
-            if n == tries - 1:
-                raise
-        finally:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)   # Chromium's helpers too
-            except ProcessLookupError:
-                pass
-            proc.wait()
-
-
-def _dump_dom(chromium, url, profile):
-    """The page's DOM after 2.5 s of virtual time."""
-    return _chromium_run(chromium, url, profile, ["--dump-dom"])
-
-
 def _shot(chromium, url, png, profile):
-    """An 800x600 screenshot (RGB)."""
+    """An 800x600 screenshot (RGB) of the replay page once it has loaded the run, and the
+    page's DOM. Through the DevTools protocol, as the live viewer's test (the command
+    line's --screenshot with a virtual-time budget now and then never returned on a
+    loaded machine: three tries of 60 s each failed in a CI run)."""
     import cv2
-    _chromium_run(chromium, url, profile, [f"--screenshot={png}"])
+
+    from tests.browser import Page, scene_state
+
+    page = Page(chromium, profile, 800, 600)
+    try:
+        page.call("Emulation.setDeviceMetricsOverride", session=True, width=800, height=600, deviceScaleFactor=1,
+                  mobile=False)
+        page.goto(url)
+        deadline = time.monotonic() + 120
+        state = None
+        while time.monotonic() < deadline:
+            state = page.evaluate(scene_state(False))
+            if state and state["replay_frames"] > 0:
+                break
+            time.sleep(0.3)
+        assert state and state["replay_frames"] > 0, f"the replay never loaded in the page: {state}"
+        time.sleep(2.0)   # the chosen frame set and drawn (meshcat draws on the next animation frames)
+        dom = page.evaluate("document.documentElement.outerHTML")
+        page.screenshot(png)
+    finally:
+        page.close()
     img = cv2.imread(str(png), cv2.IMREAD_COLOR)
-    assert img is not None and img.shape == (600, 800, 3), f"Chromium wrote no screenshot {png}"
-    return img[..., ::-1].astype(int)
+    assert img is not None and img.shape == (600, 800, 3), f"Chromium wrote no screenshot {png}: {img is None}"
+    return img[..., ::-1].astype(int), dom
 
 
 @pytest.mark.browser
@@ -190,23 +182,13 @@ def test_replay_in_headless_chromium_shows_the_chosen_frame(run_results, tmp_pat
     data = load_run(run_results)
     scene, _ = replay_commands(data)
     view = scene.view
-    # a first Chromium start reads the browser from disk: on a busy machine that alone can
-    # outlast a screenshot's timeout, so warm it up on an empty page
-    _chromium_run(chromium, "about:blank", tmp_path / "warm", ["--dump-dom"], tries=1, timeout=120)
     shots = {}
     for frame in (5, 60):
         proc, url = _view(run_results, "--frame", frame, "--images", "cam0", "--image-width", 160)
         try:
-            # the first headless load from a fresh server now and then never lets virtual time
-            # run out (seen only on this loaded shared machine; the next load is fine): one
-            # throwaway load first, then the checked ones (each retried once more)
-            try:
-                _chromium_run(chromium, url, tmp_path / f"prime{frame}", ["--dump-dom"], tries=1, timeout=25)
-            except subprocess.TimeoutExpired:
-                pass
-            shots[frame] = _shot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / f"profile{frame}")
+            shots[frame], page_dom = _shot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / f"profile{frame}")
             if frame == 5:
-                dom = _dump_dom(chromium, url, tmp_path / "profile_dom")
+                dom = page_dom
         finally:
             assert _stop(proc) == 0
     # the page has the replay's controls: meshcat's play / pause / time slider and ours
