@@ -150,13 +150,20 @@ def parse_layout(data, path: str = "layout.yaml") -> Layout:
                                   restart=bool(e.get("restart", True))))
     if not any(not worker_class(w.kind).CONSUMES for w in workers):
         raise LayoutError(f"{path}: no source: the layout needs a worker that produces frames (kind: grabber)")
-    for kind in sorted({w.kind for w in workers if worker_class(w.kind).FRAME_SHARES}):
-        try:   # the workers of a stage that scales out by frame: every frame has exactly one of them
-            stage_shares([w for w in workers if w.kind == kind], path)
-        except ValueError as exc:
-            raise LayoutError(str(exc)) from None
+    _check_frame_shares(workers, path)
     return Layout(room=room, bus=bus, workers=workers, run=_run_spec(data.get("run"), path), path=path,
                   restarts=_restarts(data.get("restarts"), path))
+
+
+def _check_frame_shares(workers, where: str) -> None:
+    """The workers of a stage that scales out by frame: every frame has exactly one of them."""
+    from workers import worker_class
+
+    for kind in sorted({w.kind for w in workers if worker_class(w.kind).FRAME_SHARES}):
+        try:
+            stage_shares([w for w in workers if w.kind == kind], where)
+        except ValueError as exc:
+            raise LayoutError(str(exc)) from None
 
 
 RESTART_KEYS = {"window_s": (1.0, 86400.0), "storm": (2, 1000), "first_delay_s": (0.0, 60.0),
@@ -242,4 +249,5 @@ def apply_overrides(layout: Layout, overrides: dict, source: str = "--config") -
             merged = dict(w.params)
             merged.update(params)
             w.params = _check_params(worker_class(w.kind), merged, f"{source}: worker {w.name}")
+    _check_frame_shares(out.workers, source)
     return out

@@ -21,11 +21,12 @@ control asks of a shard only its own frames (:func:`last_own`).
 """
 from __future__ import annotations
 
-__all__ = ["frame_share", "owns", "count_own", "last_own", "stage_shares", "FrameOrder"]
+__all__ = ["frame_share", "valid_share", "owns", "count_own", "last_own", "stage_shares", "FrameOrder"]
 
 
 def frame_share(params: dict) -> tuple[int, int] | None:
-    """``(k, n)`` of a worker's ``share`` parameter, or None (it takes every frame)."""
+    """``(k, n)`` of a worker's ``share`` parameter (frames, or a pose worker's track ids),
+    or None (it takes them all)."""
     share = params.get("share")
     if share is None:
         return None
@@ -33,6 +34,7 @@ def frame_share(params: dict) -> tuple[int, int] | None:
 
 
 def valid_share(share) -> bool:
+    """``share`` is ``[k, n]``, integers with ``0 <= k < n``."""
     return (isinstance(share, (list, tuple)) and len(share) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
                                                                           for v in share)
             and 0 <= share[0] < share[1])

@@ -121,3 +121,11 @@ def test_stats_json_counts_a_shard_s_own_frames_and_its_stage_s_rate():
 
     out = summarise({"rec_a": stage(2, 12.0, [0, 2]), "rec_b": stage(2, 12.5, [1, 2]), "pose": stage(5, 20.0)}, 25.0)
     assert out["bottleneck"] == "pose" and out["stages"]["rec_a"]["frame_share"] == [0, 2]
+
+
+def test_an_override_that_leaves_frames_to_nobody_is_refused_too():
+    from app.config import apply_overrides, load_layout
+
+    layout = load_layout("deploy/layouts/many_cores.yaml")
+    with pytest.raises(LayoutError, match="one n"):
+        apply_overrides(layout, {"reconstruction_0": {"share": [0, 3]}}, "--set")

@@ -64,6 +64,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.errors import InputError
+from app.frame_shares import frame_share, owns, valid_share
 from app.messages import Keypoints, Poses, Tracks, Voxels
 from app.pose.selection import pose_frame
 from workers.base import Worker
@@ -159,10 +160,9 @@ class Pose(Worker):
         except (TypeError, ValueError) as exc:
             raise InputError(f"pose: {exc}") from None
         share = p.get("share")
-        valid = isinstance(share, (list, tuple)) and len(share) == 2 and 0 <= share[0] < share[1]
-        if share is not None and not valid:
+        if share is not None and not valid_share(share):
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
-        self.share = share
+        self.share = frame_share(p)   # (k, n) of the track ids, or None
         # the silhouette term projects the model into the cameras the voxels were carved from
         self.calibration = self.run_calibration() if (self.settings.silhouette > 0 or self.settings.keypoints > 0) \
             else None
@@ -334,10 +334,7 @@ class Pose(Worker):
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         # every track takes part in the voxel ownership; only this worker's share is posed
-        only = None
-        if self.share is not None:
-            k, n = self.share
-            only = lambda t: t % n == k  # noqa: E731
+        only = None if self.share is None else (lambda t: owns(self.share, t))
         people_kp = None
         if self.keypoint_workers:
             from app.keypoints.fusion import frame_keypoints

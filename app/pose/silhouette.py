@@ -90,15 +90,6 @@ class CameraRays:
         return cv2.remap(mask.astype(np.uint8), self.map[0], self.map[1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
 
-    def distances(self, rows: np.ndarray, cols: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Horizontal distance ``(n, T)`` from the rays of pixels ``(rows, cols)`` to ``points (T, 2)``."""
-        s = self.segments[rows, cols]
-        a, ab = s[:, None, :2], (s[:, 2:] - s[:, :2])[:, None, :]
-        ap = points[None, :, :2] - a
-        den = np.maximum((ab * ab).sum(-1), 1e-12)
-        u = np.clip((ap * ab).sum(-1) / den, 0.0, 1.0)
-        return np.hypot(*np.moveaxis(ap - u[..., None] * ab, -1, 0))
-
 
 _RAYS: dict = {}
 
@@ -116,10 +107,10 @@ def _rays(camera, width: int, height: int) -> CameraRays:
 @njit(cache=True, nogil=True)
 def _pixel_owners(segments, rows, cols, points, reach, owner):
     """Per pixel ``(rows, cols)`` the track ``points (T, 3)`` whose ``reach`` its ray's
-    segment passes, when exactly one does, else -1: :meth:`CameraRays.distances` (the
-    same operations, in the same order) and the test, one pixel at a time, without the
-    (n, T) temporaries (a frame's silhouettes at 2 cm cost every pose worker 7 ms
-    through numpy: issue 26)."""
+    segment passes, when exactly one does, else -1: the horizontal distance of each point
+    to the segment (``CameraRays.segments``: to the point's projection on the segment's
+    line, clamped to its ends), one pixel at a time, without the (n, T) temporaries of the numpy it
+    replaced (a frame's silhouettes at 2 cm cost every pose worker 7 ms: issue 26)."""
     for i in range(rows.shape[0]):
         ax, ay = segments[rows[i], cols[i], 0], segments[rows[i], cols[i], 1]
         bx, by = segments[rows[i], cols[i], 2] - ax, segments[rows[i], cols[i], 3] - ay
