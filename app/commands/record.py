@@ -24,7 +24,9 @@ def main(args) -> int:
         if not args.calibration:
             raise InputError("--live needs --calibration FILE")
         calib = load_calibration(args.calibration)
-        source = LiveSource(parse_live(args.live), calib, frames=args.frames)
+        # the limit counts frames written: the first ticks, before every camera has
+        # delivered its first image, write nothing
+        source = LiveSource(parse_live(args.live), calib)
         calib = calib.select(source.cameras)
     elif args.recording:
         source = RecordingSource(args.recording, frames=args.frames)
@@ -38,9 +40,14 @@ def main(args) -> int:
         for index, images in source.frames():
             last.update(images)  # a camera missing a frame repeats its last image
             if len(last) < len(calib.cameras):
+                if getattr(source, "failed", None):
+                    raise InputError("camera %s never delivered an image; nothing recorded"
+                                     % ", ".join(sorted(source.failed)))
                 continue
             writer.write({c.name: last[c.name] for c in calib.cameras})
             n += 1
+            if args.frames is not None and n >= args.frames:
+                break
             if n % 25 == 0:
                 print(f"\rrecorded {n} frames", end="", file=sys.stderr)
     except KeyboardInterrupt:
