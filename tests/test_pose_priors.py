@@ -7,7 +7,7 @@ import pytest
 from app.messages import JOINTS
 from app.pose.coverage import STANCE_FREE, stance_penalty
 from app.pose.estimator import PoseSettings
-from app.pose.model import DOF, BodyModel, neutral_state
+from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, BodyModel, neutral_state
 from app.pose.offline import clip_errors, run_clip, simulated_clip
 
 J = {n: i for i, n in enumerate(JOINTS)}
@@ -186,6 +186,31 @@ def test_importance_draws_are_the_sequential_draws():
             ref[:, DOF[f"{side}_sh_rot"]] = rng.normal(0.0, 0.2, n)
             ref[:, DOF[f"{side}_elbow"]] = np.abs(rng.normal(0.2, 0.3, n))
         assert np.array_equal(got, ref)
+
+
+def test_a_lowered_root_is_drawn_sitting_with_its_feet_on_the_floor():
+    """With the blob's top 0.3 m below the stature (a person sitting down), the
+    importance function's ``low_legs`` share of draws bends both legs so that the
+    ankles stand at their height above the floor, ahead of the hips, within the limits;
+    without it (0) the legs stay near standing and the ankles go into the floor."""
+    from app.pose.detections import Detections, Importance
+    det = Detections(head=np.array([1.0, 2.0, 1.25]), top=H - 0.3, centroid=np.array([1.0, 2.0, 0.7]),
+                     headings=[0.0], hands=None)
+    model = BodyModel(H)
+    for share, sitting in ((0.5, True), (0.0, False)):
+        draws = Importance(det, H, low_legs=share)(400, np.random.default_rng(3))
+        assert ((draws >= LIMITS_LO) & (draws <= LIMITS_HI)).all()
+        bent = (draws[:, DOF["l_knee"]] > 0.7) & (draws[:, DOF["l_hip_flex"]] > 0.7)
+        if not sitting:
+            assert not bent.any()
+            assert np.median([model.joints(s)[JOINTS.index("l_ankle"), 2] for s in draws]) < 0.0
+            continue
+        assert 0.35 < bent.mean() < 0.65
+        j = np.array([model.joints(s) for s in draws[bent]])
+        for side in ("l", "r"):
+            ankle, hip = j[:, JOINTS.index(f"{side}_ankle")], j[:, JOINTS.index(f"{side}_hip")]
+            assert np.median(np.abs(ankle[:, 2] - 0.039 * H)) < 0.015 and np.percentile(np.abs(ankle[:, 2] - 0.039 * H), 90) < 0.04
+            assert (ankle[:, 0] - hip[:, 0]).mean() > 0.2      # feet ahead of the hips (heading 0: +x)
 
 
 def test_observation_box_and_cells_are_numpys(footless_clip):

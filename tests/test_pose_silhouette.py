@@ -132,6 +132,46 @@ def test_the_model_that_covers_the_silhouettes_scores_best(calibration):
     assert rho_off[0] < rho[0]
 
 
+def test_the_true_pose_covers_as_much_of_a_fine_view_as_of_a_coarse_one(calibration):
+    """Silhouettes reduced 2x instead of 8x (a finer camera, or one nearer the person)
+    leave the 8-cm model points one pixel in several: as sent, rho_Sil of the true pose
+    falls with the pixel size; coarsened to the lattice at the person's depth
+    (``spacing``) it stays, and each coarse pixel is the person's exactly when one of its
+    fine pixels is, under intrinsics that map a point to its fine pixel's coarse one."""
+    from app.pose.silhouette import coarsening
+
+    position = (2.5, 2.0, None)
+    true = _arms_out(position)
+    where = np.array([[true[0], true[1], 1.0]])
+    lut = kernel_lut(build_flesh(HEIGHT, 0.08, 1.0))
+    act = np.ones(len(PARTS), bool)
+    rho = {}
+    for factor in (8, 2):
+        view = SilhouetteView(_render(calibration, [true], factor=factor), calibration.cameras, reach=0.6)
+        for spacing in (0.0, 0.08):
+            person = view.people(where, spacing)[0]
+            stamp = np.zeros(person.grids.shape, np.int64)
+            rho[factor, spacing] = float(silhouette_coverage(true[None], HEIGHT, lut, act, person, stamp, 1)[0])
+    print("rho of the true pose (reduction, spacing):", {k: round(v, 3) for k, v in rho.items()})
+    assert rho[2, 0.0] < rho[8, 0.0] - 0.2                  # as sent: the finer view is scored far lower
+    assert abs(rho[2, 0.08] - rho[8, 0.08]) < 0.12 and rho[2, 0.08] > 0.5
+    view = SilhouetteView(_render(calibration, [true], factor=2), calibration.cameras, reach=0.6)
+    fine, coarse = view.people(where)[0], view.people(where, 0.08)[0]
+    for c, rays in enumerate(view.rays):
+        f = coarsening(rays, where[0], 0.08)
+        assert f >= 2
+        rows, cols = np.nonzero(fine.grids[c])
+        assert coarse.counts[c] == len(set(zip(rows // f, cols // f)))
+        assert set(zip(*np.nonzero(coarse.grids[c]))) == set(zip(rows // f, cols // f))
+        # a camera-frame point at a fine pixel's centre falls in that pixel's coarse pixel
+        fx, sk, cx, fy, cy = fine.intrinsics[c]
+        Fx, Sk, Cx, Fy, Cy = coarse.intrinsics[c]
+        for u, v in ((0, 0), (17, 5), (41, 33)):
+            y = (v - cy) / fy
+            x = (u - cx - sk * y) / fx
+            assert (int(Fy * y + Cy + 0.5), int(Fx * x + Sk * y + Cx + 0.5)) == (v // f, u // f)
+
+
 def test_each_person_owns_only_their_own_pixels(calibration):
     a, b = _arms_out((1.5, 2.0, None)), _arms_out((3.5, 2.0, None))
     both = _render(calibration, [a, b])

@@ -123,11 +123,15 @@ class Pose(Worker):
         "silhouette_density": 2.0,  # the model's points for the term on a lattice of this many voxel sizes (about a
                                     # pixel of the silhouettes the reconstruction sends)
         "silhouette_reach": 0.6,    # m: a silhouette pixel is a person's when its ray passes this near only that track
+        "silhouette_fit": True,     # silhouettes coarsened per person to the model points' lattice at its depth
+                                    # (rho_Sil independent of the camera's distance and resolution); False: as sent
         "keypoints": 0.0,           # m: sigma of the 2D keypoint term (app.keypoints.fusion; the layout's keypoints
                                     # workers send them); 0 = off
         "keypoint_gate": 0.3,       # m: a keypoint's error is truncated here
         "keypoint_conf": 0.5,       # keypoints less sure than this cost nothing
         "keypoint_hands": True,     # triangulated wrists are the importance function's hands
+        "low_legs": 0.5,            # importance draws with a lowered root whose legs reach the floor bent (a person
+                                    # sitting down); 0 = off (legs near standing, the earlier proposal)
         "threads": 1,               # people posed in parallel by this many threads in the worker (issue 26)
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
@@ -137,7 +141,7 @@ class Pose(Worker):
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "gamma_budget": (0, 5000), "gamma_min": (2, 500),
-              "importance_fraction": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
+              "importance_fraction": (0.0, 1.0), "low_legs": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),

@@ -322,10 +322,10 @@ class Importance:
     nothing about, ``dofs`` (optional) the only DoFs drawn: the others stay the base's,
     and the arms' inverse kinematics is solved on the base's torso)."""
 
-    def __init__(self, det: Detections, height: float, ik: str = "table"):
+    def __init__(self, det: Detections, height: float, ik: str = "table", low_legs: float = 0.0):
         if ik not in ("table", "straight"):
             raise ValueError(f"ik {ik!r} must be table or straight")
-        self.det, self.height, self.ik = det, height, ik
+        self.det, self.height, self.ik, self.low_legs = det, height, ik, float(low_legs)
 
     def __call__(self, n: int, rng: np.random.Generator, base: np.ndarray | None = None, dofs=None) -> np.ndarray:
         out = self._draw(n, rng, base)
@@ -335,7 +335,37 @@ class Importance:
             out = merged
         if self.ik == "table" and self.det.hands is not None and len(self.det.hands):
             self._arms_ik(out, rng, dofs)
+        if self.low_legs > 0:
+            self._low_legs(out, rng, dofs)
         return np.clip(out, LIMITS_LO, LIMITS_HI)
+
+    def _low_legs(self, out: np.ndarray, rng: np.random.Generator, dofs) -> None:
+        """Legs that reach the floor from a lowered root (sitting, crouching): of the
+        draws whose root is more than 0.05 H below standing, ``low_legs`` get each leg
+        bent so that its ankle is at its standing height (0.039 H) below the hip, with
+        the shin at a random angle ``phi`` from vertical (-0.4..0.5 rad, forward
+        positive): ``L_thigh cos(flex) + L_shin cos(phi) = hip_z - 0.039 H``, knee
+        ``flex - phi``. The near-standing legs of :meth:`_draw` put a lowered root on
+        its knees, and the annealing's steps (0.075 rad of hip flexion a frame) do not
+        reach a seated pose from there: a person who sat down was posed kneeling into
+        the floor (tuning seed 4, 350 mm off for the 5 s she sat)."""
+        legs = [DOF[f"{side}_{n}"] for side in ("l", "r") for n in ("hip_flex", "knee")]
+        if dofs is not None and not np.isin(legs, dofs).any():
+            return
+        H = self.height
+        hip_z = out[:, DOF["z"]] - 0.025 * H
+        low = out[:, DOF["z"]] < standing_root_height(H) - 0.05 * H
+        use = np.flatnonzero(low & (rng.random(len(out)) < self.low_legs))
+        if len(use) == 0:
+            return
+        thigh, shin = 0.240 * H, 0.246 * H
+        pitch = out[use, DOF["pitch"]]   # a pelvis pitched by p swings the thighs back by p
+        for side in ("l", "r"):
+            phi = rng.uniform(-0.4, 0.5, len(use))
+            c = (hip_z[use] - 0.039 * H - shin * np.cos(phi)) / thigh
+            thigh_angle = np.arccos(np.clip(c, -1.0, 1.0)) + rng.normal(0.0, 0.03, len(use))
+            out[use, DOF[f"{side}_hip_flex"]] = thigh_angle + pitch
+            out[use, DOF[f"{side}_knee"]] = np.maximum(thigh_angle - phi, 0.0)
 
     def _arms_ik(self, out: np.ndarray, rng: np.random.Generator, dofs) -> None:
         """Half of the draws point each arm's wrist at a hand candidate on its side

@@ -76,10 +76,13 @@ class PoseSettings:
     silhouette: float = 0.0         # sigma^2 of the silhouette term (app.pose.silhouette); 0 = off (the thesis)
     silhouette_density: float = 2.0  # ... the model's points for it on a lattice of this many voxel sizes (Eq. 6.26's factor)
     silhouette_reach: float = 0.6   # m: a silhouette pixel is a track's when its ray passes this near the track only
+    silhouette_fit: bool = True     # each person's silhouettes coarsened to the model points' lattice at its depth
+                                    # (app.pose.silhouette.coarsening); False: as the reconstruction sends them
     keypoints: float = 0.0          # m: sigma of the 2D keypoint term (app.keypoints.fusion); 0 = off
     keypoint_gate: float = 0.3      # m: a keypoint's error is truncated here (a wrong detection costs at most this)
     keypoint_conf: float = 0.5      # keypoints less sure than this cost nothing
     keypoint_hands: bool = True     # wrists triangulated from the keypoints are the importance function's hands
+    low_legs: float = 0.5           # importance draws with a lowered root whose legs reach the floor bent (sitting); 0 = off
     height_frames: int = 5
     threads: int = 1                # people posed in parallel by this many threads (the kernels release the GIL)
     seed: int = 0
@@ -119,6 +122,8 @@ class PoseSettings:
             raise ValueError("silhouette must be >= 0 (0: off), silhouette_density >= 0.5, silhouette_reach > 0")
         if not (self.keypoints >= 0 and self.keypoint_gate > 0 and 0 <= self.keypoint_conf <= 1):
             raise ValueError("keypoints must be >= 0 (0: off), keypoint_gate > 0, keypoint_conf in 0..1")
+        if not 0 <= self.low_legs <= 1:
+            raise ValueError(f"low_legs {self.low_legs} must be in 0..1 (0: off)")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
             raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
 
@@ -272,7 +277,7 @@ class PersonPose:
             hands = keypoint_hands(keypoints, self.height, s.keypoint_conf)
             if len(hands):
                 det.hands = hands
-        importance = Importance(det, self.height, s.ik) if det is not None else None
+        importance = Importance(det, self.height, s.ik, s.low_legs) if det is not None else None
         if self.state is None:
             start = neutral_state(self.height, (position[0], position[1], None))
             self.filter.reset(start, importance=importance)
@@ -339,7 +344,8 @@ class PoseEstimator:
         # times the particles, so three shards cost what one worker did: issue 26), and the
         # poses of the sharded and the single layouts are the same
         gamma = self.settings.shbm_gamma(len(ids)) if self.settings.method.startswith("shbm") else None
-        silhouettes = view.people(positions) if view is not None else None
+        spacing = self.settings.silhouette_density * self.settings.voxel_size if self.settings.silhouette_fit else 0.0
+        silhouettes = view.people(positions, spacing) if view is not None else None
         jobs = []
         for k, tid in enumerate(ids):
             if only is not None and not only(tid):
