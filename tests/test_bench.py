@@ -68,3 +68,9 @@ def test_bus_benchmark_between_two_processes(tmp_path):
     for mode in res:
         assert mode["latency_frames"] == 40 and mode["throughput_frames"] == mode["throughput_sent"]
         assert 0 < mode["latency_ms_p50"] < 50
+
+
+def test_no_pose_seeds_is_a_clear_error(tmp_path):
+    r = smartroom("bench", "pose", "--pose-seeds", 0, "--out", tmp_path / "b", timeout=60)
+    assert r.returncode != 0 and "--pose-seeds 0: must be at least 1" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "b").exists()

@@ -335,6 +335,10 @@ def _accuracy(args, out: Path) -> dict:
 
 
 def main(args) -> int:
+    from app.errors import InputError
+
+    if args.pose_seeds < 1:
+        raise InputError(f"--pose-seeds {args.pose_seeds}: must be at least 1")
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
