@@ -33,6 +33,12 @@ the pinhole model into the reduced silhouettes, which are first remapped once a 
 undistorted views (the lens model of §2.2.2 per point cost 3x more); a pixel counts
 once per particle (a stamp grid with a token per particle, never cleared).
 
+Each person's silhouette in each camera is first coarsened to the model points'
+lattice at the person's depth (:func:`coarsening`, ``PoseSettings.silhouette_fit``): a
+point then covers about one pixel whether the camera is near or far, fine or coarse,
+and ``rho_Sil`` of the true pose is about the same on every rig (on the project's own
+rooms, 3-5 m from 640-pixel cameras, it was; on a random scene's near cameras it was 0.2).
+
 Figures (docs/benchmarks.md, "Pose", and docs/history/pose-likelihood.md, "Session 8"): replays of the pipeline's
 voxels over 30 pose seeds, walk1 at 2 cm MMTA 0.878 -> 0.930, meeting3 at 4 cm 0.825 ->
 0.861, gesture1 0.953 -> 0.968; the default pipeline on meeting3 stays real time.
