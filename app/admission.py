@@ -16,6 +16,12 @@ here the frame numbers are checked against the stream they claim to belong to:
   :data:`EPOCH_CONFIRM` nearby frames: the stage jumps to the newest frames and the
   frames it skipped are counted (:attr:`FrameWindow.skipped`). Offline nothing is
   skipped, so nothing jumps.
+  An epoch is its source's start time (ms since 1970). Given the run's start
+  (``earliest_epoch``: the launcher's, in the resolved layout), an epoch older than it or
+  later than now, by more than :data:`EPOCH_SLACK_MS` (clocks of the room's hosts
+  disagreeing), is refused whatever the window: no source of this run has it, so a
+  forger's first message cannot set a window the real stream is then refused from
+  (issue 25: epoch 2^40 sent before the grabber's first frame held every key).
 - :class:`Rejections` counts what was turned away per key and reason and logs it at
   most once per :data:`LOG_PERIOD_S` per reason, with the count since the last line.
 
@@ -26,11 +32,12 @@ from __future__ import annotations
 import threading
 import time
 
-__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S"]
+__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S", "EPOCH_SLACK_MS"]
 
 WINDOW = 1000          # frames either side of the newest accepted one (40 s at 25 fps)
 EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch starting anew
 EPOCH_QUIET_S = 0.5    # silence of the current epoch before a newer one may take over
+EPOCH_SLACK_MS = 3_600_000   # how far the hosts' clocks may disagree: an epoch this far outside the run is refused
 LOG_PERIOD_S = 5.0
 
 
@@ -38,9 +45,12 @@ class FrameWindow:
     """The epoch and newest frame of one stream; :meth:`admit` says whether a frame
     belongs to it (None) or why not (a short reason)."""
 
-    def __init__(self, window: int = WINDOW, clock=time.monotonic, follow_ahead: bool = False):
+    def __init__(self, window: int = WINDOW, clock=time.monotonic, follow_ahead: bool = False,
+                 earliest_epoch: int | None = None, wall_ms=None):
         self.window = int(window)
         self.clock = clock
+        self.earliest_epoch = earliest_epoch   # the run's start (ms since 1970) or None: no bound
+        self.wall_ms = wall_ms or (lambda: time.time_ns() // 1_000_000)
         self.follow_ahead = follow_ahead
         self.skipped = 0              # frames jumped over (follow_ahead)
         self.epoch: int | None = None
@@ -52,6 +62,11 @@ class FrameWindow:
         now = self.clock()
         if frame < 0:
             return "negative frame"
+        if self.earliest_epoch is not None:
+            if epoch < self.earliest_epoch - EPOCH_SLACK_MS:
+                return "epoch before the run"
+            if epoch > self.wall_ms() + EPOCH_SLACK_MS:
+                return "epoch from the future"
         if self.epoch is None:          # the first frame of the stream sets it
             self.epoch, self.newest, self.last_seen = epoch, frame, now
             return None

@@ -202,7 +202,7 @@ def _run_spec(data, path: str) -> RunSpec:
             raise LayoutError(f"{path}: run: unknown key {str(key)!r} (known: {', '.join(known)})")
         default = known[key].default if known[key].default is not MISSING else known[key].default_factory()
         want = {"recording": str, "recording_id": str, "calibration": str, "out": str, "fps": (int, float),
-                "frames": int}.get(
+                "frames": int, "started_ms": int}.get(
             key, type(default))
         if value is not None and (not isinstance(value, want) or isinstance(value, bool) != isinstance(default, bool)):
             raise LayoutError(f"{path}: run: {key} has the wrong type ({value!r})")

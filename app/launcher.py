@@ -154,6 +154,10 @@ class Launcher:
             hub = _hub_bus(self.layout.bus)
             self.hub_bus = hub
             self.layout.bus = dataclasses.replace(hub, connect=_connect_endpoints(hub.listen))
+            # the sources' epochs are their start times: none of this run's is older than this
+            # (app.admission.FrameWindow refuses one that is, a forger's); other hosts read it
+            # from this layout
+            self.layout.run = dataclasses.replace(self.layout.run, started_ms=time.time_ns() // 1_000_000)
         else:   # one host's share: its workers and this launcher are clients of the hub elsewhere
             if not connect:
                 raise InputError(f"--host {host}: give the hub's endpoint with --connect (e.g. tcp/10.0.0.1:7447)")

@@ -52,6 +52,8 @@ class RunSpec:
     headless: bool = False
     live: dict = field(default_factory=dict)   # live camera sources {camera: device or URL}
     trace: bool = False                        # workers write per-frame timings to <out>/trace/
+    started_ms: int | None = None              # the hub's launcher's start, ms since 1970: the sources' epochs
+                                               # (their start, the same clock) are not older (app.admission)
 
 
 @dataclass

@@ -5,7 +5,7 @@ import struct
 import numpy as np
 import pytest
 
-from app.admission import EPOCH_QUIET_S, FrameWindow, Rejections
+from app.admission import EPOCH_QUIET_S, EPOCH_SLACK_MS, FrameWindow, Rejections
 from app.messages import (EndOfStream, Frame, Mask, MessageError, Poses, Stats, Tracks, Voxels, decode,
                           encode)
 
@@ -70,6 +70,27 @@ def test_a_live_source_starting_again_at_zero_is_confirmed_by_two_frames():
     assert w.admit(2, 0) == "unconfirmed epoch"
     assert w.admit(2, 1) is None and w.epoch == 2 and w.newest == 1
     assert w.admit(2, 2) is None
+
+
+def test_an_epoch_outside_the_run_never_sets_the_window():
+    """Epochs are their sources' start times; with the run's start known, a forger's
+    epoch from before the run (2^40 ms: 2004) or from the future is refused, so its
+    message arriving first cannot hold the key against the real stream. Hosts' clocks
+    may disagree by up to EPOCH_SLACK_MS."""
+    start = 1_795_000_000_000                        # the launcher's start, ms since 1970
+    now = [start + 5_000]
+    w = FrameWindow(window=100, clock=Clock(), earliest_epoch=start, wall_ms=lambda: now[0])
+    assert w.admit(2 ** 40, 10 ** 6) == "epoch before the run"
+    assert w.admit(now[0] + EPOCH_SLACK_MS + 1, 3) == "epoch from the future"
+    assert w.epoch is None
+    assert w.admit(start + 800, 0) is None and w.epoch == start + 800   # the grabber's, started after the launcher
+    assert w.admit(start + 800, 1) is None
+    # a grabber on a host whose clock is 20 minutes behind is still this run's
+    other = FrameWindow(window=100, clock=Clock(), earliest_epoch=start, wall_ms=lambda: now[0])
+    assert other.admit(start - 20 * 60_000, 0) is None
+    # without the run's start (a worker started by hand) the first epoch sets the window
+    alone = FrameWindow(window=100, clock=Clock())
+    assert alone.admit(2 ** 40, 10 ** 6) is None
 
 
 def test_rejections_are_counted_per_key_and_reason_and_logged_sparingly(caplog):

@@ -36,10 +36,10 @@ def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
         session.close()
 
 
-def _run_beside(flood, recording, tmp_path, extra_workers=()):
+def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0):
     """A real run of ``recording`` (its hub on a known port) with ``flood(port, room, stop,
-    sent)`` publishing from another process's session from 2 s in; ``(out, stdout, stderr,
-    exit code, messages sent)``."""
+    sent)`` publishing from another process's session from ``delay`` s in; ``(out, stdout,
+    stderr, exit code, messages sent)``."""
     port = free_port()
     path = write_layout(tmp_path / "layout.yaml", extra_workers=list(extra_workers))
     doc = yaml.safe_load(path.read_text())
@@ -52,7 +52,7 @@ def _run_beside(flood, recording, tmp_path, extra_workers=()):
     stop, sent = threading.Event(), []
     thread = threading.Thread(target=flood, args=(port, doc["room"], stop, sent), daemon=True)
     try:
-        time.sleep(2.0)        # the hub is up
+        time.sleep(delay)      # the hub is up
         thread.start()
         shown, err = run.communicate(timeout=240)
     finally:
@@ -109,4 +109,47 @@ def test_junk_on_a_data_key_pushes_no_real_message_out(long_recording, tmp_path)
     rec = stats["workers"]["reconstruction"]
     assert rec["items_dropped"] == 0
     assert sum(n for k, n in rec["rejected"].items() if k.startswith("mask/cam0: malformed")) > 5000
+    assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))
+
+
+def _forged_epoch(port: int, room: str, stop: threading.Event, sent: list) -> None:
+    """Valid masks of cam0 in a forged epoch (2^40 ms: the year 2004), frames 0-249 over
+    and over, from before the grabber's first frame on."""
+    import zenoh
+    import numpy as np
+
+    from app.messages import Mask
+
+    session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
+    try:
+        pub = session.declare_publisher(Keys(room).mask("cam0"), congestion_control=zenoh.CongestionControl.BLOCK)
+        m = np.zeros((15, 20), bool)
+        i = 0
+        while not stop.is_set():
+            pub.put(Mask.pack(m, frame=i % 250, camera="cam0", cameras=["cam0"], epoch=2 ** 40).to_bytes())
+            i += 1
+            time.sleep(0.001)
+        sent.append(i)
+    finally:
+        session.close()
+
+
+def test_a_forged_epoch_sent_before_the_stream_holds_no_key(long_recording, tmp_path):
+    """Masks in an epoch no source of this run has (older than the launcher's start, which
+    the resolved layout carries) sent from before the first real frame: the first of them
+    used to set the reconstruction's window for mask/cam0, so the real masks were refused
+    as a new epoch while the forger kept "its" one running and the run lost its frames.
+    Now they are refused as before the run, and every frame is reconstructed."""
+    from app.results import iter_voxels
+
+    t0 = time.time()
+    out, _, err, rc, sent = _run_beside(_forged_epoch, long_recording, tmp_path, delay=0.5)
+    assert sent > 500, sent
+    assert rc == 0, err[-2000:]
+    started = yaml.safe_load((out / "layout.yaml").read_text())["run"]["started_ms"]
+    assert t0 * 1000 <= started <= time.time() * 1000
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"]
+    rec = stats["workers"]["reconstruction"]
+    assert sum(n for k, n in rec["rejected"].items() if k == "mask/cam0: epoch before the run") > 500
     assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))
