@@ -179,9 +179,9 @@ class SilhouetteView:
                     continue
                 f = coarsening(rays, positions[k], spacing) if spacing > 0 else 1
                 if f > 1:
-                    r, q = np.unique(np.stack([rows[mine] // f, cols[mine] // f]), axis=1)
+                    r, q = rows[mine] // f, cols[mine] // f
                     grids[k, c, r, q] = 1
-                    counts[k, c] = len(r)
+                    counts[k, c] = int(np.count_nonzero(grids[k, c, :r.max() + 1, :q.max() + 1]))
                     fx, sk, cx, fy, cy = intr[k, c]
                     intr[k, c] = (fx / f, sk / f, (cx + 0.5) / f - 0.5, fy / f, (cy + 0.5) / f - 0.5)
                 else:
