@@ -209,7 +209,8 @@ def test_a_lowered_root_is_drawn_sitting_with_its_feet_on_the_floor():
         j = np.array([model.joints(s) for s in draws[bent]])
         for side in ("l", "r"):
             ankle, hip = j[:, JOINTS.index(f"{side}_ankle")], j[:, JOINTS.index(f"{side}_hip")]
-            assert np.median(np.abs(ankle[:, 2] - 0.039 * H)) < 0.015 and np.percentile(np.abs(ankle[:, 2] - 0.039 * H), 90) < 0.04
+            off = np.abs(ankle[:, 2] - 0.039 * H)          # from the ankle's standing height
+            assert np.median(off) < 0.015 and np.percentile(off, 90) < 0.04
             assert (ankle[:, 0] - hip[:, 0]).mean() > 0.2      # feet ahead of the hips (heading 0: +x)
 
 

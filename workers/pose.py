@@ -141,7 +141,8 @@ class Pose(Worker):
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
               "gamma_budget": (0, 5000), "gamma_min": (2, 500),
-              "importance_fraction": (0.0, 1.0), "low_legs": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0), "floor": (0.0, 10.0),
+              "importance_fraction": (0.0, 1.0), "low_legs": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0),
+              "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),

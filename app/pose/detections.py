@@ -25,10 +25,11 @@ Detections (cheap, from the voxel list):
 
 The importance function draws whole states: root under the head at the height the
 blob's top allows, heading from the candidates, waist flexion from the lean, arms
-toward extremities (or hanging), legs near standing, all with Gaussian noise and
-inside the joint limits. Draws replace a fraction of the first layer's particles (the
-mixture proposal of IAPF; the dynamics' particles stay, so tracking is not disturbed
-when the detections are wrong).
+toward extremities (or hanging), legs near standing (or, for a share ``low_legs`` of the
+draws whose root is well below standing, bent so that the feet reach the floor: sitting,
+crouching), all with Gaussian noise and inside the joint limits. Draws replace a
+fraction of the first layer's particles (the mixture proposal of IAPF; the dynamics'
+particles stay, so tracking is not disturbed when the detections are wrong).
 """
 from __future__ import annotations
 
@@ -344,8 +345,9 @@ class Importance:
         draws whose root is more than 0.05 H below standing, ``low_legs`` get each leg
         bent so that its ankle is at its standing height (0.039 H) below the hip, with
         the shin at a random angle ``phi`` from vertical (-0.4..0.5 rad, forward
-        positive): ``L_thigh cos(flex) + L_shin cos(phi) = hip_z - 0.039 H``, knee
-        ``flex - phi``. The near-standing legs of :meth:`_draw` put a lowered root on
+        positive): the thigh's angle ``a`` from vertical by ``L_thigh cos(a) + L_shin
+        cos(phi) = hip_z - 0.039 H``, hip flexion ``a`` plus the pelvis's pitch, knee
+        ``a - phi``. The near-standing legs of :meth:`_draw` put a lowered root on
         its knees, and the annealing's steps (0.075 rad of hip flexion a frame) do not
         reach a seated pose from there: a person who sat down was posed kneeling into
         the floor (tuning seed 4, 350 mm off for the 5 s she sat)."""

@@ -82,7 +82,8 @@ class PoseSettings:
     keypoint_gate: float = 0.3      # m: a keypoint's error is truncated here (a wrong detection costs at most this)
     keypoint_conf: float = 0.5      # keypoints less sure than this cost nothing
     keypoint_hands: bool = True     # wrists triangulated from the keypoints are the importance function's hands
-    low_legs: float = 0.5           # importance draws with a lowered root whose legs reach the floor bent (sitting); 0 = off
+    low_legs: float = 0.5           # share of the importance draws with a lowered root whose legs bend to the floor
+                                    # (sitting, app.pose.detections.Importance); 0 = off
     height_frames: int = 5
     threads: int = 1                # people posed in parallel by this many threads (the kernels release the GIL)
     seed: int = 0
