@@ -32,13 +32,28 @@ from __future__ import annotations
 import threading
 import time
 
-__all__ = ["FrameWindow", "Rejections", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S", "EPOCH_SLACK_MS"]
+__all__ = ["FrameWindow", "Rejections", "epoch_outside_run", "WINDOW", "EPOCH_CONFIRM", "EPOCH_QUIET_S",
+           "EPOCH_SLACK_MS"]
 
 WINDOW = 1000          # frames either side of the newest accepted one (40 s at 25 fps)
 EPOCH_CONFIRM = 2      # distinct, nearby frame numbers that confirm a new epoch starting anew
 EPOCH_QUIET_S = 0.5    # silence of the current epoch before a newer one may take over
 EPOCH_SLACK_MS = 3_600_000   # how far the hosts' clocks may disagree: an epoch this far outside the run is refused
 LOG_PERIOD_S = 5.0
+
+
+def epoch_outside_run(epoch: int, earliest: int | None, now_ms: int | None = None) -> str | None:
+    """Why ``epoch`` is no source's of a run that started at ``earliest`` (ms since 1970;
+    None: unknown, nothing is refused), or None: older than the start or later than now by
+    more than :data:`EPOCH_SLACK_MS`. Stateless, so a worker asks it in zenoh's thread,
+    before a message takes a place in its inbox."""
+    if earliest is None:
+        return None
+    if epoch < earliest - EPOCH_SLACK_MS:
+        return "epoch before the run"
+    if epoch > (time.time_ns() // 1_000_000 if now_ms is None else now_ms) + EPOCH_SLACK_MS:
+        return "epoch from the future"
+    return None
 
 
 class FrameWindow:
@@ -63,10 +78,9 @@ class FrameWindow:
         if frame < 0:
             return "negative frame"
         if self.earliest_epoch is not None:
-            if epoch < self.earliest_epoch - EPOCH_SLACK_MS:
-                return "epoch before the run"
-            if epoch > self.wall_ms() + EPOCH_SLACK_MS:
-                return "epoch from the future"
+            outside = epoch_outside_run(epoch, self.earliest_epoch, self.wall_ms())
+            if outside:
+                return outside
         if self.epoch is None:          # the first frame of the stream sets it
             self.epoch, self.newest, self.last_seen = epoch, frame, now
             return None

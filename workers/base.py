@@ -40,7 +40,7 @@ from collections import deque
 from pathlib import Path
 from typing import ClassVar
 
-from app.admission import FrameWindow, Rejections
+from app.admission import FrameWindow, Rejections, epoch_outside_run
 from app.frame_shares import FrameOrder, frame_share, owns, stage_shares
 from app.bus import Keys, Publisher, decode_sample, open_session
 from app.compiles import CompileClock
@@ -518,6 +518,9 @@ class Worker(Restarts):
         bounded inbox (a flood of junk on a key used to push real frames out of it)."""
         key = str(sample.key_expr)
         msg = self._valid(key, sample)
+        if msg is not None and (outside := epoch_outside_run(msg.epoch, self.layout.run.started_ms)):
+            self.reject(key, outside, f"frame {msg.frame}, epoch {msg.epoch}")
+            return            # a forger's epoch takes no place in the inbox
         if msg is not None and not owns(self.frame_share, msg.frame):
             return            # another worker's frame (share): not this worker's input
         if msg is not None and not self.inbox.put(key, msg):
