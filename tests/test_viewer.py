@@ -553,14 +553,15 @@ def _publish_person(session, keys, stop: threading.Event):
     dims = np.ceil((tiny_calibration().room_max - tiny_calibration().room_min) / VOXEL).astype(int).tolist()
     pubs = {k: Publisher(session, k) for k in (keys.voxels(), keys.tracks(), keys.poses())}
     frame = 0
+    epoch = time.time_ns() // 1_000_000   # a source's epoch is its start (a run refuses others)
     while not stop.is_set():
         now = time.time()
         pubs[keys.voxels()].put(Voxels(frame=frame, stamp=now, voxel_size=VOXEL, origin=[0.0, 0.0, 0.0], dims=dims,
-                                       indices=idx, colours=colours, surface=np.zeros(0, bool)))
+                                       indices=idx, colours=colours, surface=np.zeros(0, bool), epoch=epoch))
         pubs[keys.tracks()].put(Tracks(frame=frame, stamp=now, ids=np.array([TRACK_ID], np.int64),
-                                       positions=np.array([[*PERSON, 0.9]])))
+                                       positions=np.array([[*PERSON, 0.9]]), epoch=epoch))
         pubs[keys.poses()].put(Poses(frame=frame, stamp=now, tracks=np.array([TRACK_ID], np.int64),
-                                     joints=joints[None], active=active[None]))
+                                     joints=joints[None], active=active[None], epoch=epoch))
         frame += 1
         stop.wait(0.1)
     for p in pubs.values():

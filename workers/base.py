@@ -188,7 +188,9 @@ class Worker(Restarts):
         self._turned = time.monotonic()       # when the loop last turned (the heartbeat says how long ago)
         self._phase = "setup"                 # "setup" until the loop starts (the heartbeat's busy)
         self._idle = 0.0
-        self._epoch = 0                      # epoch of the input being handled (outputs inherit it)
+        # epoch of the input being handled (outputs inherit it); a source's own is its start
+        # (a worker refuses epochs from before the run: app.admission.epoch_outside_run)
+        self._epoch = 0 if self.CONSUMES else time.time_ns() // 1_000_000
         self._epoch_seen = False
         self._signal: int | None = None
         self.input_ended = False             # True once this worker's input has truly ended
