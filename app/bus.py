@@ -116,6 +116,11 @@ class Keys:
     def poses(self) -> str:
         return f"{self.root}/poses"
 
+    def poses_json(self) -> str:
+        """Each frame's ``poses.jsonl`` record as JSON (the streamer's ``json`` protocol):
+        the pose feed for clients that do not link our codec (docs/streaming/zenoh-feed.md)."""
+        return f"{self.root}/poses/json"
+
     def keypoints(self) -> str:
         return f"{self.root}/keypoints"
 

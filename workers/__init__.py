@@ -26,6 +26,7 @@ KINDS = {
     "viewer": "workers.viewer:Viewer",
     "monitor": "workers.monitor:Monitor",
     "exporter": "workers.exporter:Exporter",
+    "streamer": "workers.streamer:Streamer",
 }
 
 

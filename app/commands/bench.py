@@ -24,6 +24,9 @@
   densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
   ``--replay RUN --recording DIR --pose-seeds N``: the pose stage again over a run's own
   voxels for N filter seeds (the seed's spread; paired comparisons with ``--pose-set``).
+- ``smartroom bench streaming``: the streamers (VMC, plain OSC, LSL) with ``--people``
+  people at ``--stream-fps``: frames received of those sent and the latency from the pose
+  message to the packet, p50/p95 (:mod:`app.benchmarks.streaming`).
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ from pathlib import Path
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
 TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy",
-           "keypoints")
+           "keypoints", "streaming")
 
 
 def add_arguments(p) -> None:
@@ -74,6 +77,9 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
     p.add_argument("--pose-surface", action="store_true",
                    help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
+    p.add_argument("--people", type=int, default=6, help="streaming: people per frame (default 6)")
+    p.add_argument("--stream-fps", type=float, default=60.0, help="streaming: frame rate (default 60)")
+    p.add_argument("--protocols", default="osc,vmc,lsl", help="streaming: protocols (default osc,vmc,lsl)")
     p.add_argument("--seeds", default="1000:1020",
                    help="accuracy: random scenes A:B (A to B-1) or a list; tune below 1000, report 1000 and up "
                         "(default 1000:1020)")
@@ -334,6 +340,21 @@ def _accuracy(args, out: Path) -> dict:
     return result
 
 
+def _streaming(args, out: Path) -> dict:
+    from app.benchmarks import streaming
+    from app.errors import InputError
+
+    protocols = tuple(p for p in args.protocols.split(",") if p)
+    if not protocols or set(protocols) - {"osc", "vmc", "lsl"}:
+        raise InputError(f"--protocols {args.protocols!r}: some of osc, vmc, lsl")
+    if not 1 <= args.people <= 64 or not 1 <= args.stream_fps <= 1000:
+        raise InputError("--people must be 1..64 and --stream-fps 1..1000")
+    res = streaming.run(seconds=args.seconds, fps=args.stream_fps, people=args.people, protocols=protocols,
+                        progress=lambda line: print(line, file=sys.stderr, flush=True))
+    print(streaming.table(res))
+    return res
+
+
 def main(args) -> int:
     from app.errors import InputError
 
@@ -342,6 +363,7 @@ def main(args) -> int:
     out = resolve_out(args, prefix="runs/bench")
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
-               "segmentation": _segmentation, "accuracy": _accuracy, "keypoints": _keypoints}[args.target](args, out)
+               "segmentation": _segmentation, "accuracy": _accuracy, "keypoints": _keypoints,
+               "streaming": _streaming}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
