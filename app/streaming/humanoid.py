@@ -68,6 +68,7 @@ HUMANOID_BONES = {
 }
 BONES = tuple(HUMANOID_BONES)
 B = {name: n for n, name in enumerate(BONES)}
+_PARENT_INDEX = np.array([-1 if parent is None else B[parent] for parent in HUMANOID_BONES.values()])
 
 X, Y, Z = np.eye(3)
 # limb -> (its joints: root, middle, end; rest direction of the segment; rest hinge axis)
@@ -81,6 +82,13 @@ _LIMB_BONES = {"LeftArm": ("LeftUpperArm", "LeftLowerArm", "LeftHand", "Chest"),
                "RightArm": ("RightUpperArm", "RightLowerArm", "RightHand", "Chest"),
                "LeftLeg": ("LeftUpperLeg", "LeftLowerLeg", "LeftFoot", "Hips"),
                "RightLeg": ("RightUpperLeg", "RightLowerLeg", "RightFoot", "Hips")}
+# the same as arrays, limbs in _LIMBS order
+_LIMB_JOINTS = np.array([[J[j] for j in joints] for joints, _, _ in _LIMBS.values()])        # (4, 3)
+_LIMB_REST = np.array([[d, h] for _, d, h in _LIMBS.values()])                              # (4, 2, 3)
+_LIMB_UPPER, _LIMB_LOWER, _LIMB_END, _LIMB_PARENTS = (np.array([B[bones[i]] for bones in _LIMB_BONES.values()])
+                                                      for i in range(4))
+_LIMB_PARENT_NAMES = [bones[3] for bones in _LIMB_BONES.values()]
+
 
 def to_unity(points: np.ndarray) -> np.ndarray:
     """Room points (..., 3) (z up, right-handed) in Unity's axes (y up, left-handed)."""
@@ -178,37 +186,42 @@ def humanoid_poses(joints: np.ndarray, tracks=None, memory: HingeMemory | None =
     pos[:, B["Neck"], 1] = 0.5 * torso
     pos[:, B["Head"], 1] = np.linalg.norm(p["head"] - p["neck"], axis=-1)
 
-    ids = [None] * N if tracks is None else [int(t) for t in tracks]
-    for limb, ((j0, j1, j2), rest_dir, rest_hinge) in _LIMBS.items():
-        upper_bone, lower_bone, end_bone, parent = _LIMB_BONES[limb]
-        upper, lower = p[j1] - p[j0], p[j2] - p[j1]
-        n = _cross(upper, lower)
-        up_len, low_len = np.linalg.norm(upper, axis=-1), np.linalg.norm(lower, axis=-1)
-        measured = np.linalg.norm(n, axis=-1) > HINGE_MIN_SIN * up_len * low_len
-        hinge = _unit(n)
-        fallback = world[:, B[parent]] @ rest_hinge
+    # the four limbs at once (N, 4, ...): a frame's cost is numpy's per-call overhead, not its size
+    j0, j1, j2 = _LIMB_JOINTS.T
+    upper, lower = P[:, j1] - P[:, j0], P[:, j2] - P[:, j1]
+    n = _cross(upper, lower)
+    up_len, low_len = np.linalg.norm(upper, axis=-1), np.linalg.norm(lower, axis=-1)
+    measured = np.linalg.norm(n, axis=-1) > HINGE_MIN_SIN * up_len * low_len
+    hinge = _unit(n)
+    parents = world[:, _LIMB_PARENTS]                                   # (N, 4, 3, 3)
+    if not measured.all():
+        fallback = np.einsum("nlij,lj->nli", parents, _LIMB_REST[:, 1])
+        hinge[~measured] = fallback[~measured]
+    if memory is not None and tracks is not None:
+        ids = [int(t) for t in tracks]
         for k in range(N):
-            key = (ids[k], limb)
-            if measured[k]:
-                if memory is not None and ids[k] is not None:
-                    memory.axes[key] = hinge[k]
-            else:
-                kept = memory.axes.get(key) if memory is not None and ids[k] is not None else None
-                hinge[k] = fallback[k] if kept is None else kept
-        for segment, bone in ((upper, upper_bone), (lower, lower_bone)):
-            s = hinge.copy()
-            parallel = np.abs(np.sum(_unit(segment) * s, axis=-1)) > 0.999
-            s[parallel] = (world[:, B[parent]] @ _cross(rest_dir, rest_hinge))[parallel]
-            world[:, B[bone]] = _rotation(segment, s, rest_dir, rest_hinge)
-        world[:, B[end_bone]] = world[:, B[lower_bone]]
-        parent_at = chest_at if parent == "Chest" else p["pelvis"]
-        pos[:, B[upper_bone]] = np.einsum("nji,nj->ni", world[:, B[parent]], p[j0] - parent_at)
-        pos[:, B[lower_bone]] = up_len[:, None] * rest_dir
-        pos[:, B[end_bone]] = low_len[:, None] * rest_dir
+            for m, limb in enumerate(_LIMBS):
+                key = (ids[k], limb)
+                if measured[k, m]:
+                    memory.axes[key] = hinge[k, m]
+                elif key in memory.axes:
+                    hinge[k, m] = memory.axes[key]
+    across = np.einsum("nlij,lj->nli", parents, _cross(_LIMB_REST[:, 0], _LIMB_REST[:, 1]))
+    rest = _frame(_LIMB_REST[:, 0], _LIMB_REST[:, 1])                   # (4, 3, 3)
+    for segment, bones in ((upper, _LIMB_UPPER), (lower, _LIMB_LOWER)):
+        s = hinge.copy()
+        parallel = np.abs(np.sum(_unit(segment) * s, axis=-1)) > 0.999
+        s[parallel] = across[parallel]
+        world[:, bones] = _frame(segment, s) @ np.swapaxes(rest, -1, -2)
+    world[:, _LIMB_END] = world[:, _LIMB_LOWER]
+    parent_at = np.where(np.array([b == "Chest" for b in _LIMB_PARENT_NAMES])[None, :, None],
+                         chest_at[:, None], p["pelvis"][:, None])
+    pos[:, _LIMB_UPPER] = np.einsum("nlji,nlj->nli", parents, P[:, j0] - parent_at)
+    pos[:, _LIMB_LOWER] = up_len[..., None] * _LIMB_REST[:, 0]
+    pos[:, _LIMB_END] = low_len[..., None] * _LIMB_REST[:, 0]
 
-    for name, parent in HUMANOID_BONES.items():
-        i = B[name]
-        local[:, i] = world[:, i] if parent is None else np.swapaxes(world[:, B[parent]], -1, -2) @ world[:, i]
+    local[:, 0] = world[:, 0]
+    local[:, 1:] = np.swapaxes(world[:, _PARENT_INDEX[1:]], -1, -2) @ world[:, 1:]
     return HumanoidPose(root, pos, local)
 
 
