@@ -24,6 +24,9 @@
   densities 1, 2, 3 on one core, next to MMTA / MMTP (simulated gesture1 and walk1, 2 cm).
   ``--replay RUN --recording DIR --pose-seeds N``: the pose stage again over a run's own
   voxels for N filter seeds (the seed's spread; paired comparisons with ``--pose-set``).
+- ``smartroom bench marker``: the marker-based APF over synthetic detections (§6.4,
+  §6.6.1): MMTA for DR x FP x sigma^2 against L x N_pL, like the thesis's Fig. 6.13
+  (:mod:`app.benchmarks.marker`; ``--marker-grid full`` for the thesis's whole grid).
 - ``smartroom bench streaming``: the streamers (VMC, plain OSC, LSL) with ``--people``
   people at ``--stream-fps``: frames received of those sent and the latency from the pose
   message to the packet, p50/p95 (:mod:`app.benchmarks.streaming`).
@@ -37,7 +40,7 @@ from pathlib import Path
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
 TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy",
-           "keypoints", "streaming")
+           "keypoints", "streaming", "marker")
 
 
 def add_arguments(p) -> None:
@@ -77,6 +80,13 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-seeds", type=int, default=1, help="pose: filter seeds per row, errors pooled")
     p.add_argument("--pose-surface", action="store_true",
                    help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
+    p.add_argument("--marker-scenes", default="walk1,occluded1",
+                   help="marker: simulated scenes (default walk1,occluded1; gesture1 was the tuning scene)")
+    p.add_argument("--marker-cost", default="both_ways", choices=("thesis", "reprojection", "both_ways"),
+                   help="marker: the likelihood (thesis: Eqs. 6.4-6.10; both_ways, the default: ours, "
+                        "app/markers/likelihood.py)")
+    p.add_argument("--marker-grid", default="small", choices=("small", "full"),
+                   help="marker: DR 0.9, FP 0/20, sigma2 4/20, (L, N_pL) (1, 300)/(3, 700); or the thesis's grid")
     p.add_argument("--people", type=int, default=6, help="streaming: people per frame (default 6)")
     p.add_argument("--stream-fps", type=float, default=60.0, help="streaming: frame rate (default 60)")
     p.add_argument("--protocols", default="osc,vmc,lsl", help="streaming: protocols (default osc,vmc,lsl)")
@@ -340,6 +350,21 @@ def _accuracy(args, out: Path) -> dict:
     return result
 
 
+def _marker(args, out: Path) -> dict:
+    from app.benchmarks.marker import bench_marker, format_table
+
+    scenes = tuple(s for s in args.marker_scenes.split(",") if s)
+    grid = None
+    if args.marker_grid == "full":   # Fig. 6.13: 360 detectors x 20 filters (hours)
+        grid = {"dr": (1.0, 0.9, 0.8, 0.7, 0.6), "fp": (0, 20, 40, 60, 80, 100),
+                "sigma2": (0, 20, 40, 60, 80, 100),
+                "filters": tuple((L, n) for L in (1, 3, 5, 7) for n in (100, 300, 500, 700, 900))}
+    rows = bench_marker(scenes, frames=args.frames or 75, grid=grid, cost=args.marker_cost,
+                        progress=lambda line: print(line, file=sys.stderr, flush=True))
+    print(format_table(rows, scenes))
+    return {"scenes": list(scenes), "rows": rows}
+
+
 def _streaming(args, out: Path) -> dict:
     from app.benchmarks import streaming
     from app.errors import InputError
@@ -364,6 +389,6 @@ def main(args) -> int:
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
                "segmentation": _segmentation, "accuracy": _accuracy, "keypoints": _keypoints,
-               "streaming": _streaming}[args.target](args, out)
+               "streaming": _streaming, "marker": _marker}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0

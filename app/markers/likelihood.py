@@ -1,0 +1,216 @@
+"""The marker likelihood of the annealed particle filter (thesis §6.4.1.2, Eqs. 6.4-6.10).
+
+For a particle's M landmarks ``x_m`` (the 15 contract joints of the body model):
+
+- Eq. 6.4: ``p_mn = P_n(x_m)``, the projection onto view n (ideal pixels,
+  :mod:`app.markers.epipolar`);
+- Eq. 6.5: ``t_n`` the detection of view n nearest to ``p_mn``, dropped when farther
+  than ``rho`` (occluded or missed: ``t_n`` empty);
+- Eqs. 6.6-6.8: ``s_m`` proportional to the generalised symmetric epipolar distance of
+  the non-empty ``t_n`` (every pair of views), normalised so that ``s_m <= 1``: here
+  ``s_m = min(1, sqrt(d_SE^2 / pairs) / rho)`` (the thesis says only "normalised such
+  that s_m <= 1"; this is the root mean square pair distance in units of ``rho``), and
+  ``s_m = 1`` with fewer than two non-empty ``t_n``;
+- Eq. 6.9: ``C = (1/M) sum_m s_m``; Eq. 6.10: ``w = exp(-C^2 / (2 sigma^2))``, sigma = 1.
+
+``cost="reprojection"`` (ours, selectable; the thesis's is ``cost="thesis"``): the
+epipolar term says whether the detections a landmark picked are one marker seen from
+several views, but not where the landmark is within ``rho`` of them, so every particle
+whose projections fall within ``rho`` of the right detections scores alike. It adds the
+mean squared distance of the projections to their detections:
+``s_m = min(1, sqrt(d_SE^2 / pairs + sum_n |p_mn - t_n|^2 / views) / rho)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
+from app.pose.model import joints_subset, segments_needed
+
+__all__ = ["MarkerScorer", "COSTS", "marker_costs"]
+
+COSTS = ("thesis", "reprojection", "both_ways")
+
+
+@njit(cache=True, nogil=True)
+def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explain, out):
+    """``out[p]`` = C of Eq. 6.9 for the landmarks ``X`` (P, M, 3) of P particles."""
+    P, M = X.shape[0], X.shape[1]
+    C = K.shape[0]
+    tx = np.empty(C)
+    ty = np.empty(C)
+    views = np.empty(C, np.int64)
+    proj = np.full((M, C, 2), 1e9)
+    n_supported = 0
+    for q in range(det.shape[0]):
+        if supported[q]:
+            n_supported += 1
+    for p in range(P):
+        total = 0.0
+        for m in range(M):
+            k = 0
+            reproj = 0.0
+            for n in range(C):
+                xc = R[n, 0, 0] * X[p, m, 0] + R[n, 0, 1] * X[p, m, 1] + R[n, 0, 2] * X[p, m, 2] + t[n, 0]
+                yc = R[n, 1, 0] * X[p, m, 0] + R[n, 1, 1] * X[p, m, 1] + R[n, 1, 2] * X[p, m, 2] + t[n, 1]
+                zc = R[n, 2, 0] * X[p, m, 0] + R[n, 2, 1] * X[p, m, 1] + R[n, 2, 2] * X[p, m, 2] + t[n, 2]
+                if zc <= 1e-6:
+                    proj[m, n, 0] = 1e9
+                    continue
+                u = K[n, 0, 0] * xc / zc + K[n, 0, 1] * yc / zc + K[n, 0, 2]
+                v = K[n, 1, 1] * yc / zc + K[n, 1, 2]
+                proj[m, n, 0] = u
+                proj[m, n, 1] = v
+                best = rho * rho
+                bi = -1
+                for q in range(start[n], start[n + 1]):
+                    du = det[q, 0] - u
+                    dv = det[q, 1] - v
+                    d2 = du * du + dv * dv
+                    if d2 <= best:
+                        best = d2
+                        bi = q
+                if bi >= 0:
+                    tx[k] = det[bi, 0]
+                    ty[k] = det[bi, 1]
+                    views[k] = n
+                    reproj += best
+                    k += 1
+            if k < 2:
+                total += 1.0
+                continue
+            d2 = 0.0
+            pairs = 0
+            for a in range(k - 1):
+                for b in range(a + 1, k):
+                    f = F[views[a], views[b]]
+                    # L(t_a, b) = F_ab t_a in view b; L(t_b, a) = F_ab^T t_b in view a (Eq. 6.6)
+                    la = f[0, 0] * tx[a] + f[0, 1] * ty[a] + f[0, 2]
+                    lb = f[1, 0] * tx[a] + f[1, 1] * ty[a] + f[1, 2]
+                    lc = f[2, 0] * tx[a] + f[2, 1] * ty[a] + f[2, 2]
+                    e1 = la * tx[b] + lb * ty[b] + lc
+                    n1 = la * la + lb * lb
+                    ma = f[0, 0] * tx[b] + f[1, 0] * ty[b] + f[2, 0]
+                    mb = f[0, 1] * tx[b] + f[1, 1] * ty[b] + f[2, 1]
+                    mc = f[0, 2] * tx[b] + f[1, 2] * ty[b] + f[2, 2]
+                    e2 = ma * tx[a] + mb * ty[a] + mc
+                    n2 = ma * ma + mb * mb
+                    if n1 > 0.0:
+                        d2 += e1 * e1 / n1
+                    if n2 > 0.0:
+                        d2 += e2 * e2 / n2
+                    pairs += 1
+            s2 = d2 / pairs
+            if reprojection:
+                s2 += reproj / k
+            s = np.sqrt(s2) / rho
+            total += s if s < 1.0 else 1.0
+        cost = total / M
+        if explain and n_supported > 0:
+            # every supported detection's distance to the nearest landmark projection of its view
+            unexplained = 0.0
+            for n in range(C):
+                for q in range(start[n], start[n + 1]):
+                    if not supported[q]:
+                        continue
+                    best = rho * rho
+                    for m in range(M):
+                        du = det[q, 0] - proj[m, n, 0]
+                        dv = det[q, 1] - proj[m, n, 1]
+                        d2 = du * du + dv * dv
+                        if d2 < best:
+                            best = d2
+                    unexplained += np.sqrt(best) / rho
+            cost += unexplained / n_supported
+        out[p] = cost
+
+
+def _triangulate(cam_a, cam_b, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """Midpoints (N, 3) of the closest points of the rays through ideal pixels ``pa``, ``pb``."""
+    def rays(cam, p):
+        d = np.concatenate([(p - cam.K[:2, 2]) / np.diag(cam.K)[:2], np.ones((len(p), 1))], axis=1) @ cam.R
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+    oa, ob = cam_a.centre, cam_b.centre
+    da, db = rays(cam_a, pa), rays(cam_b, pb)
+    w = oa - ob
+    b = np.sum(da * db, axis=1)
+    d, e = da @ w, db @ w
+    denom = np.maximum(1.0 - b * b, 1e-9)
+    s = (b * e - d) / denom
+    t = (e - b * d) / denom
+    return 0.5 * (oa + s[:, None] * da + ob + t[:, None] * db)
+
+
+def supported_detections(ideal, cameras, F, tol: float) -> np.ndarray:
+    """Which detections (flat, view by view) are a marker seen from several views: with
+    three views or more, one detection of another view lies within ``tol`` of its epipolar
+    line and the point the two triangulate projects within ``tol`` of a detection of a
+    third view (a false detection rarely has both); with two views, the first test alone."""
+    n_views = len(ideal)
+    out = [np.zeros(len(d), bool) for d in ideal]
+    for a in range(n_views):
+        for b in range(n_views):
+            if a == b or not len(ideal[a]) or not len(ideal[b]):
+                continue
+            d = symmetric_epipolar_distance(ideal[a][:, None], ideal[b][None], F[a, b])   # (Qa, Qb)
+            qa, qb = np.nonzero(d < tol)
+            if not len(qa):
+                continue
+            if n_views < 3:
+                out[a][qa] = True
+                continue
+            X = _triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb])
+            for c in range(n_views):
+                if c in (a, b) or not len(ideal[c]):
+                    continue
+                pc = ideal_project(cameras[c], X)
+                near = np.min(np.linalg.norm(pc[:, None] - ideal[c][None], axis=2), axis=1) < tol
+                out[a][qa[near]] = True
+    return np.concatenate(out) if out else np.zeros(0, bool)
+
+
+class MarkerScorer:
+    """Scores body-model particles against one frame's marker detections (the
+    ``log_weights`` of a :class:`~app.pose.filters.APF` scorer)."""
+
+    def __init__(self, cameras, height: float, rho: float = 20.0, sigma: float = 1.0, cost: str = "thesis",
+                 support_px: float = 6.0):
+        if cost not in COSTS:
+            raise ValueError(f"marker cost must be one of {', '.join(COSTS)}, got {cost!r}")
+        self.cameras = list(cameras)
+        self.height = float(height)
+        self.rho, self.sigma, self.cost = float(rho), float(sigma), cost
+        self.support_px = float(support_px)
+        self.K = np.array([c.K for c in self.cameras])
+        self.R = np.array([c.R for c in self.cameras])
+        self.t = np.array([c.t for c in self.cameras])
+        self.F = fundamentals(self.cameras)
+        self.joints = np.arange(15, dtype=np.int64)
+        self.need = segments_needed(self.joints)
+        self.det = np.zeros((0, 2))
+        self.start = np.zeros(len(self.cameras) + 1, np.int64)
+        self.supported = np.zeros(0, np.bool_)
+        self.evaluations = 0
+
+    def set_detections(self, detections) -> None:
+        """One frame's detections: per camera (Q_n, 2) observed pixels."""
+        ideal = [ideal_pixels(c, d) for c, d in zip(self.cameras, detections)]
+        self.start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
+        self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
+        self.supported = supported_detections(ideal, self.cameras, self.F, self.support_px) \
+            if self.cost == "both_ways" else np.zeros(len(self.det), np.bool_)
+
+    def costs(self, states: np.ndarray) -> np.ndarray:
+        X = joints_subset(states, self.height, self.joints, self.need)
+        out = np.empty(len(states))
+        marker_costs(X, self.K, self.R, self.t, self.F, self.det, self.start, self.supported, self.rho,
+                     self.cost != "thesis",
+                     self.cost == "both_ways", out)
+        self.evaluations += len(states)
+        return out
+
+    def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
+        """Eq. 6.10: ``log w = -C^2 / (2 sigma^2)``."""
+        c = self.costs(states)
+        return -(c * c) / (2.0 * self.sigma * self.sigma)
