@@ -24,8 +24,11 @@ DEFAULT_GRID = {"dr": (0.9,), "fp": (0, 20), "sigma2": (4.0, 20.0), "filters": (
 
 def _clip(scene: str, frames: int, seed: int):
     from app.simulation.simulator import Simulator
-    sim = Simulator(scene, fps=25, seconds=frames / 25.0 + 0.2, seed=seed, width=640, height=480)
-    gts = [sim.groundtruth(i) for i in range(frames)]
+    sim = Simulator(scene, fps=25, seconds=frames / 25.0 + 10.0, seed=seed, width=640, height=480)
+    first = next((i for i in range(sim.frame_count()) if sim.groundtruth(i)["people"]), None)
+    if first is None:
+        raise ValueError(f"scene {scene}: nobody in its first 10 s")
+    gts = [sim.groundtruth(i) for i in range(first, first + frames)]   # from the first person's entry
     pid = gts[0]["people"][0]["id"]
     people = []
     for g in gts:
@@ -37,12 +40,14 @@ def _clip(scene: str, frames: int, seed: int):
 
 
 def bench_marker(scenes=("walk1",), frames: int = 75, grid: dict | None = None, cost: str = "both_ways",
-                 epsilon: float = 0.1, seed: int = 0, progress=None) -> list[dict]:
-    """One row per (DR, FP, sigma2, L, N_pL) cell, errors pooled over ``scenes``."""
+                 epsilon: float = 0.1, seed: int = 0, progress=None, **tracker) -> list[dict]:
+    """One row per (DR, FP, sigma2, L, N_pL) cell, errors pooled over ``scenes``;
+    ``tracker``: other :class:`~app.markers.tracking.MarkerTracker` settings."""
     from app.markers.synthetic import DetectorModel, synthetic_detections
     from app.markers.tracking import MarkerTracker, fit_state
 
     g = {**DEFAULT_GRID, **(grid or {})}
+    tracker_settings = tracker
     clips = {s: _clip(s, frames, seed) for s in scenes}
     rows = []
     for dr in g["dr"]:
@@ -54,7 +59,7 @@ def bench_marker(scenes=("walk1",), frames: int = 75, grid: dict | None = None, 
                     for k, (scene, (cameras, height, people)) in enumerate(clips.items()):
                         rng = np.random.default_rng(1000 + k)
                         tracker = MarkerTracker(cameras, height, particles=particles, layers=layers, cost=cost,
-                                                seed=seed)
+                                                seed=seed, **tracker_settings)
                         all0, _, me0 = people[0]
                         tracker.start(fit_state(height, all0[me0]))
                         for n, (all_joints, statures, me) in enumerate(people):

@@ -19,6 +19,15 @@ several views, but not where the landmark is within ``rho`` of them, so every pa
 whose projections fall within ``rho`` of the right detections scores alike. It adds the
 mean squared distance of the projections to their detections:
 ``s_m = min(1, sqrt(d_SE^2 / pairs + sum_n |p_mn - t_n|^2 / views) / rho)``.
+
+``cost="both_ways"`` (ours, the default): the landmarks still pick their detections
+freely, so two landmarks may share one marker (an elbow on the wrist's detections, the
+wrist's own missed) and score as well as the truth. So the detections are asked to be
+explained too: each *supported* detection (:func:`supported_detections`: a marker seen
+consistently from three views; a false detection rarely is) adds its distance to the
+nearest landmark projection of its view, in units of ``rho`` (at most 1), and ``C``
+gains ``explain`` times their mean. On the simulated clips it was tuned on the thesis's
+likelihood lost the person within a second; this one follows (docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -35,7 +44,8 @@ COSTS = ("thesis", "reprojection", "both_ways")
 
 @njit(cache=True, nogil=True)
 def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explain, out):
-    """``out[p]`` = C of Eq. 6.9 for the landmarks ``X`` (P, M, 3) of P particles."""
+    """``out[p]`` = C of Eq. 6.9 for the landmarks ``X`` (P, M, 3) of P particles, plus
+    ``explain`` times the mean unexplained share of the supported detections."""
     P, M = X.shape[0], X.shape[1]
     C = K.shape[0]
     tx = np.empty(C)
@@ -107,7 +117,7 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
             s = np.sqrt(s2) / rho
             total += s if s < 1.0 else 1.0
         cost = total / M
-        if explain and n_supported > 0:
+        if explain > 0 and n_supported > 0:
             # every supported detection's distance to the nearest landmark projection of its view
             unexplained = 0.0
             for n in range(C):
@@ -122,7 +132,7 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
                         if d2 < best:
                             best = d2
                     unexplained += np.sqrt(best) / rho
-            cost += unexplained / n_supported
+            cost += explain * unexplained / n_supported
         out[p] = cost
 
 
@@ -142,32 +152,41 @@ def _triangulate(cam_a, cam_b, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return 0.5 * (oa + s[:, None] * da + ob + t[:, None] * db)
 
 
-def supported_detections(ideal, cameras, F, tol: float) -> np.ndarray:
+def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Which detections (flat, view by view) are a marker seen from several views: with
     three views or more, one detection of another view lies within ``tol`` of its epipolar
     line and the point the two triangulate projects within ``tol`` of a detection of a
-    third view (a false detection rarely has both); with two views, the first test alone."""
+    third view (a false detection rarely has both); with two views, the first test alone.
+    Also the 3D points (K, 3) the supported pairs triangulate (marker candidates)."""
     n_views = len(ideal)
     out = [np.zeros(len(d), bool) for d in ideal]
+    points = []
     for a in range(n_views):
-        for b in range(n_views):
-            if a == b or not len(ideal[a]) or not len(ideal[b]):
+        for b in range(a + 1, n_views):
+            if not len(ideal[a]) or not len(ideal[b]):
                 continue
             d = symmetric_epipolar_distance(ideal[a][:, None], ideal[b][None], F[a, b])   # (Qa, Qb)
             qa, qb = np.nonzero(d < tol)
             if not len(qa):
                 continue
             if n_views < 3:
-                out[a][qa] = True
+                out[a][qa] = out[b][qb] = True
+                points.append(_triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb]))
                 continue
             X = _triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb])
+            seen = np.zeros(len(qa), bool)
             for c in range(n_views):
                 if c in (a, b) or not len(ideal[c]):
                     continue
                 pc = ideal_project(cameras[c], X)
-                near = np.min(np.linalg.norm(pc[:, None] - ideal[c][None], axis=2), axis=1) < tol
-                out[a][qa[near]] = True
-    return np.concatenate(out) if out else np.zeros(0, bool)
+                near = np.linalg.norm(pc[:, None] - ideal[c][None], axis=2)
+                hit = np.min(near, axis=1) < tol
+                out[c][np.argmin(near, axis=1)[hit]] = True
+                seen |= hit
+            out[a][qa[seen]] = out[b][qb[seen]] = True
+            points.append(X[seen])
+    flags = np.concatenate(out) if out else np.zeros(0, bool)
+    return flags, (np.concatenate(points) if points else np.zeros((0, 3)))
 
 
 class MarkerScorer:
@@ -175,13 +194,16 @@ class MarkerScorer:
     ``log_weights`` of a :class:`~app.pose.filters.APF` scorer)."""
 
     def __init__(self, cameras, height: float, rho: float = 20.0, sigma: float = 1.0, cost: str = "thesis",
-                 support_px: float = 6.0):
+                 support_px: float = 6.0, candidates: bool = False, explain: float = 1.0):
         if cost not in COSTS:
             raise ValueError(f"marker cost must be one of {', '.join(COSTS)}, got {cost!r}")
         self.cameras = list(cameras)
         self.height = float(height)
         self.rho, self.sigma, self.cost = float(rho), float(sigma), cost
         self.support_px = float(support_px)
+        self.explain = float(explain)        # both_ways: the weight of the detections' term
+        self.candidates = bool(candidates)   # keep the supported pairs' 3D points (the arms' proposals)
+        self.points = np.zeros((0, 3))
         self.K = np.array([c.K for c in self.cameras])
         self.R = np.array([c.R for c in self.cameras])
         self.t = np.array([c.t for c in self.cameras])
@@ -198,15 +220,18 @@ class MarkerScorer:
         ideal = [ideal_pixels(c, d) for c, d in zip(self.cameras, detections)]
         self.start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
         self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
-        self.supported = supported_detections(ideal, self.cameras, self.F, self.support_px) \
-            if self.cost == "both_ways" else np.zeros(len(self.det), np.bool_)
+        if self.cost == "both_ways" or self.candidates:
+            self.supported, self.points = supported_detections(ideal, self.cameras, self.F, self.support_px)
+        else:
+            self.supported, self.points = np.zeros(len(self.det), np.bool_), np.zeros((0, 3))
+        if self.cost != "both_ways":
+            self.supported = np.zeros(len(self.det), np.bool_)
 
     def costs(self, states: np.ndarray) -> np.ndarray:
         X = joints_subset(states, self.height, self.joints, self.need)
         out = np.empty(len(states))
         marker_costs(X, self.K, self.R, self.t, self.F, self.det, self.start, self.supported, self.rho,
-                     self.cost != "thesis",
-                     self.cost == "both_ways", out)
+                     self.cost != "thesis", self.explain if self.cost == "both_ways" else 0.0, out)
         self.evaluations += len(states)
         return out
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.markers.likelihood import MarkerScorer
+from app.markers.proposals import LimbProposals, agreed_points
 from app.pose.filters import APF
 from app.pose.model import LIMITS_HI, LIMITS_LO, BodyModel, neutral_state
 
@@ -26,7 +27,7 @@ def fit_state(height: float, joints: np.ndarray, start: np.ndarray | None = None
     if start is None:
         pelvis = joints[0]
         across = joints[12] - joints[9]          # r_hip - l_hip
-        yaw = float(np.arctan2(across[1], across[0])) - np.pi / 2   # the model faces +x at yaw 0
+        yaw = float(np.arctan2(across[1], across[0])) + np.pi / 2   # the model faces +x at yaw 0 (left +y)
         start = neutral_state(height, (pelvis[0], pelvis[1], pelvis[2]), yaw)
     lo = np.where(np.isfinite(LIMITS_LO), LIMITS_LO, -1e3)
     hi = np.where(np.isfinite(LIMITS_HI), LIMITS_HI, 1e3)
@@ -42,14 +43,27 @@ def fit_state(height: float, joints: np.ndarray, start: np.ndarray | None = None
     return best.x
 
 
+REACH = 0.8              # m: how far beyond its last pose a person's markers are looked for
+CANDIDATE_RADIUS = 0.03   # m: triangulations of one marker from different pairs of views agree this well
+
+
 class MarkerTracker:
-    """One person's pose from frames of marker detections (per camera (Q_n, 2) pixels)."""
+    """One person's pose from frames of marker detections (per camera (Q_n, 2) pixels).
+
+    Defaults (tuned on the simulated gesture1, statures3, meeting3, crowd6, still2 and
+    enter2; reported on walk1 and occluded1, docs/benchmarks.md): our likelihood
+    (``cost="both_ways"``, the detections' term weighted ``explain = 3``; the thesis's is
+    ``cost="thesis"``), ``rho`` 20 px, detections supported within ``support_px`` 6 px,
+    limb proposals for a fifth of the first layer (``proposals``; 0: the plain APF)."""
 
     def __init__(self, cameras, height: float, particles: int = 700, layers: int = 3, rho: float = 20.0,
-                 sigma: float = 1.0, cost: str = "thesis", alpha: float = 0.5, seed: int = 0):
+                 sigma: float = 1.0, cost: str = "both_ways", alpha: float = 0.5, seed: int = 0,
+                 proposals: float = 0.2, support_px: float = 6.0, explain: float = 3.0):
         self.model = BodyModel(height)
-        self.scorer = MarkerScorer(cameras, height, rho=rho, sigma=sigma, cost=cost)
-        self.filter = APF(particles=particles, layers=layers, alpha=alpha, rng=np.random.default_rng(seed))
+        self.scorer = MarkerScorer(cameras, height, rho=rho, sigma=sigma, cost=cost, candidates=proposals > 0,
+                                   support_px=support_px, explain=explain)
+        self.filter = APF(particles=particles, layers=layers, alpha=alpha, rng=np.random.default_rng(seed),
+                          importance_fraction=proposals)
         self.state: np.ndarray | None = None
 
     def start(self, state: np.ndarray) -> None:
@@ -60,9 +74,35 @@ class MarkerTracker:
         """One frame: the estimated state (27,)."""
         if self.state is None:
             raise RuntimeError("MarkerTracker.start() first")
-        self.scorer.set_detections(detections)
-        self.state = self.filter.step(self.scorer)
+        self.scorer.set_detections(self._near_person(detections))
+        self.state = self.filter.step(self.scorer, importance=self._proposals())
         return self.state
+
+    def _near_person(self, detections) -> list:
+        """Per camera, the detections in the box around the person's last pose, widened by
+        ``REACH`` metres at the person's depth (others' markers farther away cannot be this
+        person's; the likelihood's cost grows with the detections it searches)."""
+        X = self.model.joints(self.state)
+        out = []
+        for cam, d in zip(self.scorer.cameras, detections):
+            d = np.asarray(d, float).reshape(-1, 2)
+            uv, z = cam.project(X, return_depth=True)
+            ok = np.isfinite(uv).all(axis=1) & (z > 0.1)
+            if not ok.any() or not len(d):
+                out.append(d)
+                continue
+            margin = REACH * cam.K[0, 0] / float(np.median(z[ok]))
+            lo, hi = uv[ok].min(axis=0) - margin, uv[ok].max(axis=0) + margin
+            out.append(d[np.all((d >= lo) & (d <= hi), axis=1)])
+        return out
+
+    def _proposals(self):
+        """The limb proposals (:mod:`app.markers.proposals`) of this frame's supported
+        detections around the person's last pose; None without candidates."""
+        if self.filter.importance_fraction <= 0 or not len(self.scorer.points):
+            return None
+        return LimbProposals.of(agreed_points(self.scorer.points, CANDIDATE_RADIUS), self.model.joints(self.state),
+                                self.model.height, float(self.state[3]))
 
     def joints(self) -> np.ndarray:
         return self.model.joints(self.state)

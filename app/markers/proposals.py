@@ -1,0 +1,118 @@
+"""Limb proposals from the markers themselves: Fontmarty's importance function (IAPF,
+seed 001) fed by 3D marker candidates, so the marker APF follows limbs that move
+farther in a frame than its diffusion reaches (a raised arm's wrist: 150 mm a frame at
+25 fps; a walking foot's swing) and finds them again once lost.
+
+* :func:`agreed_points`: the 3D marker candidates: points that two pairs of views or
+  more triangulate within ``radius`` of each other (a marker seen by three views is
+  triangulated by three pairs; a false detection's point rarely by two).
+* :class:`LimbProposals`, the importance function ``(n, rng, base, dofs) -> (n, 27)``:
+  on each drawn particle's own torso, each arm with probability one half gets its wrist
+  on a candidate within an arm's reach of its shoulder (the pose stage's look-up inverse
+  kinematics, :class:`app.pose.detections.Importance`), and each leg with probability
+  one half its ankle on a candidate within a leg's reach below its hip (damped
+  Gauss-Newton on hip flexion, abduction and knee, a few steps from the particle's own
+  leg).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from app.pose.detections import Detections, Importance
+from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, joints_subset, segments_needed
+
+__all__ = ["agreed_points", "LimbProposals"]
+
+_ARMS = np.array([DOF[f"{side}_{n}"] for side in ("l", "r") for n in ("sh_flex", "sh_abd", "sh_rot", "elbow")])
+_LEGS = {side: np.array([DOF[f"{side}_{n}"] for n in ("hip_flex", "hip_abd", "knee")]) for side in ("l", "r")}
+_HIP = {"l": 9, "r": 12}
+_ANKLE = {"l": 11, "r": 14}
+_ANKLE_NEED = {side: segments_needed([_ANKLE[side]]) for side in ("l", "r")}
+IK_STEPS = 6
+IK_DAMPING = 1e-3
+
+
+def agreed_points(points: np.ndarray, radius: float = 0.03) -> np.ndarray:
+    """The means (K, 3) of the groups of ``points`` that agree within ``radius``
+    (module docstring)."""
+    if len(points) < 2:
+        return np.zeros((0, 3))
+    d = np.linalg.norm(points[:, None] - points[None], axis=2)
+    close = d < radius
+    out, taken = [], np.zeros(len(points), bool)
+    for k in np.argsort(-close.sum(axis=1)):
+        if taken[k] or close[k].sum() < 2:
+            continue
+        group = close[k] & ~taken
+        taken |= group
+        out.append(points[group].mean(axis=0))
+    return np.array(out) if out else np.zeros((0, 3))
+
+
+def leg_ik(states: np.ndarray, side: str, targets: np.ndarray, height: float) -> np.ndarray:
+    """``states`` with each row's ``side`` leg (hip flexion, abduction, knee) moved so
+    that its ankle comes as near ``targets`` (n, 3) as the joint limits allow."""
+    S = np.array(states, dtype=np.float64)
+    dofs = _LEGS[side]
+    joint = np.array([_ANKLE[side]], np.int64)
+    need = _ANKLE_NEED[side]
+    eps = 1e-4
+    # the knee first, from the hip-ankle distance (law of cosines: thigh 0.240 H, shin
+    # 0.246 H): from a straight leg, a knee's first-order effect moves the ankle sideways,
+    # not nearer, and the steps below would stall there
+    hip = joints_subset(S, height, np.array([_HIP[side]], np.int64))[:, 0]
+    thigh, shin = 0.240 * height, 0.246 * height
+    d = np.clip(np.linalg.norm(targets - hip, axis=1), abs(thigh - shin) + 1e-3, thigh + shin - 1e-3)
+    cos_k = (thigh * thigh + shin * shin - d * d) / (2 * thigh * shin)
+    knee = dofs[2]
+    S[:, knee] = np.clip(np.pi - np.arccos(np.clip(cos_k, -1.0, 1.0)), LIMITS_LO[knee], LIMITS_HI[knee])
+    for _ in range(IK_STEPS):
+        a = joints_subset(S, height, joint, need)[:, 0]
+        r = targets - a
+        J = np.empty((len(S), 3, len(dofs)))
+        for k, d in enumerate(dofs):
+            Sk = S.copy()
+            Sk[:, d] += eps
+            J[:, :, k] = (joints_subset(Sk, height, joint, need)[:, 0] - a) / eps
+        JtJ = np.einsum("nik,nil->nkl", J, J) + IK_DAMPING * np.eye(len(dofs))
+        step = np.linalg.solve(JtJ, np.einsum("nik,ni->nk", J, r)[..., None])[..., 0]
+        S[:, dofs] = np.clip(S[:, dofs] + step, LIMITS_LO[dofs], LIMITS_HI[dofs])
+    return S
+
+
+class LimbProposals:
+    """The importance function of one frame (module docstring) around the joints
+    ``joints`` (15, 3) of the person's last pose; None-safe: :meth:`of` returns None
+    without candidates near the person."""
+
+    def __init__(self, candidates: np.ndarray, joints: np.ndarray, height: float, yaw: float):
+        self.height = float(height)
+        H = self.height
+        d_sh = np.linalg.norm(candidates[:, None] - joints[[3, 6]][None], axis=2).min(axis=1)
+        self.hands = candidates[(d_sh < 0.36 * H) & (d_sh > 0.12 * H)]
+        hips = joints[[_HIP["l"], _HIP["r"]]]
+        d_hip = np.linalg.norm(candidates[:, None] - hips[None], axis=2).min(axis=1)
+        below = candidates[:, 2] < hips[:, 2].max() - 0.1 * H
+        self.feet = candidates[(d_hip < 0.52 * H) & (d_hip > 0.2 * H) & below]
+        self.arms = None
+        if len(self.hands):
+            det = Detections(head=joints[2], top=float(joints[2, 2] + 0.066 * H), centroid=joints[0],
+                             headings=[float(yaw)], hands=self.hands)
+            self.arms = Importance(det, H)
+
+    @classmethod
+    def of(cls, candidates, joints, height, yaw):
+        p = cls(candidates, joints, height, yaw) if len(candidates) else None
+        return p if p is not None and (p.arms is not None or len(p.feet)) else None
+
+    def __call__(self, n: int, rng: np.random.Generator, base: np.ndarray, dofs=None) -> np.ndarray:
+        out = np.array(base, dtype=np.float64)
+        if self.arms is not None:
+            out = self.arms(n, rng, out, _ARMS)
+        if len(self.feet):
+            for side in ("l", "r"):
+                use = np.flatnonzero(rng.random(n) < 0.5)
+                if len(use):
+                    targets = self.feet[rng.integers(len(self.feet), size=len(use))]
+                    out[use] = leg_ik(out[use], side, targets, self.height)
+        return np.clip(out, LIMITS_LO, LIMITS_HI)
