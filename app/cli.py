@@ -23,6 +23,7 @@ VERBS = {
     "train": ("app.commands.train", "train the person / no-person classifier of the tracker"),
     "export": ("app.commands.export", "write a run's people as BVH, C3D, TRC or CSV for other tools"),
     "view": ("app.commands.view", "replay a finished run in the viewer (meshcat in a browser)"),
+    "markers": ("app.commands.markers", "learn the colour of the markers (marker-based capture) and check it"),
 }
 
 

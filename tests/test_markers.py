@@ -90,3 +90,74 @@ def test_the_marker_apf_follows_a_walking_person_from_synthetic_detections():
     thesis = bench_marker(("walk1",), frames=30, cost="thesis", grid=grid)[0]
     assert ours["mmta"] >= 0.9 and ours["mpjpe_mm"] < 60, ours
     assert thesis["mmta"] < ours["mmta"] - 0.3, (thesis, ours)
+
+
+def test_the_colour_detector_finds_the_markers_painted_on_a_simulated_person():
+    """walk1 rendered with markers (app.simulation.markers): the chroma model learnt from
+    three clicked markers of one camera's frame finds the visible markers of another
+    frame in every camera within 3 px (recall >= 0.75), with few false detections."""
+    from app.markers.detector import detect_markers, learn_chroma
+    from app.simulation.simulator import Simulator
+    sim = Simulator("walk1", fps=25, seconds=2, width=640, height=480, markers=True)
+
+    def frame(i):
+        images, labels, gt = sim.render(i)
+        X = np.array([[p["joints"][j] for j in JOINTS] for p in gt["people"]])
+        ids = np.repeat([p["id"] for p in gt["people"]], len(JOINTS))
+        return images, labels, X, [p["height"] for p in gt["people"]], ids
+
+    def painted(cam, labels, X, statures, ids):
+        """The markers the camera sees: its person's flesh does not hide them, nothing is in front."""
+        uv = cam.project(X.reshape(-1, 3))
+        px = np.clip(np.round(uv).astype(int), 0, [cam.width - 1, cam.height - 1])
+        front = labels[cam.name][px[:, 1], px[:, 0]] == ids
+        return uv[visible_markers(X, statures, cam).reshape(-1) & front]
+
+    images, labels, X, statures, ids = frame(10)
+    cam = sim.calibration.cameras[1]
+    model = learn_chroma(images[cam.name], painted(cam, labels, X, statures, ids)[:3])
+    images, labels, X, statures, ids = frame(30)
+    found = visible = false = detections = 0
+    for cam in sim.calibration.cameras:
+        uv = painted(cam, labels, X, statures, ids)
+        d = detect_markers(images[cam.name], model)
+        if len(uv) and len(d):
+            dist = np.linalg.norm(uv[:, None] - d[None], axis=2)
+            found += int((dist.min(axis=1) < 3).sum())
+            false += int((dist.min(axis=0) > 3).sum())
+        visible += len(uv)
+        detections += len(d)
+    assert visible >= 20 and found >= 0.75 * visible, (found, visible)
+    assert false <= 0.1 * detections + 1, (false, detections)
+
+
+@pytest.mark.integration
+def test_markers_learn_and_check_on_a_simulated_recording_with_markers(tmp_path):
+    """``smartroom simulate --markers``, then ``smartroom markers learn`` from clicks on three
+    markers of one camera, then ``markers check``: markers found in every camera; a clicks
+    file with a bad line is one error line naming it."""
+    import json
+
+    from calibration import load_calibration
+    from tests.conftest import smartroom
+    rec = tmp_path / "rec"
+    r = smartroom("simulate", "--scene", "gesture1", "--seconds", 0.4, "--markers", "--out", rec, "--quiet",
+                  timeout=300)
+    assert r.returncode == 0, r.stderr
+    gt = json.loads((rec / "groundtruth.jsonl").read_text().splitlines()[0])
+    X = np.array([[p["joints"][j] for j in JOINTS] for p in gt["people"]])
+    cam = load_calibration(rec / "calibration.yaml").cameras[1]
+    uv = cam.project(X.reshape(-1, 3))[visible_markers(X, [p["height"] for p in gt["people"]], cam).reshape(-1)]
+    clicks = tmp_path / "clicks.txt"
+    clicks.write_text("# x y\n" + "".join(f"{x:.1f} {y:.1f}\n" for x, y in uv[:3]))
+    model = tmp_path / "markers.json"
+    r = smartroom("markers", "learn", "--recording", rec, "--camera", cam.name, "--clicks", clicks, "--out", model)
+    assert r.returncode == 0, r.stderr
+    assert model.is_file() and "markers detected" in r.stdout
+    r = smartroom("markers", "check", "--recording", rec, "--model", model, "--frame", 5)
+    assert r.returncode == 0, r.stderr
+    counts = [int(line.split(": ")[1].split()[0]) for line in r.stdout.splitlines()]
+    assert len(counts) == 4 and min(counts) >= 5, r.stdout
+    clicks.write_text("10 20\nten 20\n")
+    r = smartroom("markers", "learn", "--recording", rec, "--camera", cam.name, "--clicks", clicks, "--out", model)
+    assert r.returncode != 0 and "line 2" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr

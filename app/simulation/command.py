@@ -1,7 +1,7 @@
 """``smartroom simulate``: write a simulated recording folder with ground truth.
 
     smartroom simulate --scene NAME --out DIR [--seconds S] [--fps F] [--seed K]
-                       [--zenithal] [--size WxH] [--occupancy SIZE_M]
+                       [--zenithal] [--size WxH] [--occupancy SIZE_M] [--markers]
     smartroom simulate --random SEED --out DIR [--seconds S] [--fps F]
     smartroom simulate --list
     smartroom simulate --preview PNG [--scene NAME] [--frame N] [--seed K]
@@ -33,6 +33,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--size", default="640x480", metavar="WxH", help="image size (default 640x480)")
     parser.add_argument("--occupancy", type=float, default=None, metavar="SIZE_M",
                         help="also write occupancy.npz: the true occupied voxels at this voxel size (m)")
+    parser.add_argument("--markers", action="store_true",
+                        help="paint coloured markers on the people's joints (marker-based capture, docs/markers.md)")
     parser.add_argument("--codec", default="mp4v", help="video codec fourcc (default mp4v)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     parser.add_argument("--list", action="store_true", help="list the scenes and exit")
@@ -91,7 +93,7 @@ def main(args) -> int:
         from app.simulation.preview import write_preview
         from app.simulation.simulator import Simulator
         sim = Simulator(name, seed=args.seed, fps=args.fps, seconds=args.seconds, width=width, height=height,
-                        zenithal=args.zenithal)
+                        zenithal=args.zenithal, markers=args.markers)
         n = sim.frame_count()
         frame = n // 2 if args.frame is None else args.frame
         if not 0 <= frame < max(n, 1):
@@ -108,6 +110,6 @@ def main(args) -> int:
     progress = None if args.quiet else print_progress(f"simulate {name}" + (f" {args.seed}" if name == RANDOM else ""))
     path = render_recording(name, args.out, seconds=seconds, fps=args.fps, seed=args.seed,
                             zenithal=args.zenithal, width=width, height=height, occupancy=args.occupancy,
-                            progress=progress, codec=args.codec, overwrite=args.overwrite)
+                            progress=progress, codec=args.codec, overwrite=args.overwrite, markers=args.markers)
     print(f"wrote {path}", file=sys.stdout)
     return 0

@@ -61,7 +61,8 @@ class Simulator:
     """
 
     def __init__(self, scene: str = DEFAULT_SCENE, seed: int = 0, fps: float = 25.0, seconds: float | None = None,
-                 width: int = 640, height: int = 480, zenithal: bool = False, cameras=None, calibration=None):
+                 width: int = 640, height: int = 480, zenithal: bool = False, cameras=None, calibration=None,
+                 markers: bool = False):
         room = None
         self.noise_sigma, self.flicker, self.drawn = _noise_sigma(), 1.0, None
         if scene == RANDOM:
@@ -90,6 +91,7 @@ class Simulator:
         if cameras is not None:
             calib = calib.select(list(cameras))
         self.calibration = calib
+        self.markers = bool(markers)   # coloured markers on the people's joints (app.simulation.markers)
         self._views = None
         self._lighting = None
         self._noise = None
@@ -231,6 +233,10 @@ class Simulator:
             offset = (index * 7919 + c * 104729 + self.seed * 31) % self._noise_span
             img, lab = views[cam.name].render(fb, shadow, gain=self.gain(index, c),
                                               noise=self._noise if noise else None, noise_offset=offset)
+            if self.markers:
+                from app.simulation.markers import paint_markers
+                paint_markers(img, lab, cam, [(p["id"], p["skeleton"].joints, p["shape"].height) for p in people
+                                              if self.in_room(p)], np.random.default_rng(offset))
             images[cam.name] = img
             labels[cam.name] = lab
         return images, labels, self.groundtruth(index, people)
@@ -251,7 +257,7 @@ def _noise_sigma() -> float:
 def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None = None, fps: float = 25.0,
                      seed: int = 0, zenithal: bool = False, width: int = 640, height: int = 480,
                      occupancy: float | None = None, progress=None, codec: str = "mp4v",
-                     overwrite: bool = False, calibration=None) -> Path:
+                     overwrite: bool = False, calibration=None, markers: bool = False) -> Path:
     """Write a recording folder (CONTRACT §1) of a scene and return its path.
 
     ``videos/<cam>.mp4`` (the codec's compression included), ``background/<cam>.png``
@@ -260,7 +266,8 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     with ``occupancy`` (a voxel size in metres), ``occupancy.npz`` (the true occupied
     voxels per frame, see :mod:`app.simulation.occupancy`). ``progress(done, total,
     elapsed_s)`` is called after each frame. The folder appears complete or not at all
-    (written as ``<out>.partial`` then renamed). ``calibration``: other cameras (see
+    (written as ``<out>.partial`` then renamed). ``markers``: coloured markers painted on
+    the people's joints (:mod:`app.simulation.markers`). ``calibration``: other cameras (see
     :class:`Simulator`).
     """
     from app.recording import RecordingWriter
@@ -269,7 +276,7 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     if out is None:
         raise InputError("render_recording needs an output folder")
     sim = Simulator(scene, seed=seed, fps=fps, seconds=seconds, width=width, height=height, zenithal=zenithal,
-                    calibration=calibration)
+                    calibration=calibration, markers=markers)
     fps = sim.fps
     total = sim.frame_count()
     if total < 1:
