@@ -6,10 +6,8 @@ Unit tests check the humanoid bones (forward kinematics of what VMC carries give
 the joints; a T-pose is the identity), the slots and the LSL sample layout.
 """
 import json
-import socket
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -21,6 +19,7 @@ from app.messages import JOINTS
 from app.streaming.humanoid import (B, BONES, HingeMemory, forward_kinematics, humanoid_poses, quaternions,
                                     rotation_matrices, to_unity)
 from app.streaming.lsl import CHANNELS_PER_SLOT, channel_labels, lsl_sample
+from app.streaming.receiver import UdpReceiver
 from app.streaming.slots import Slots
 from tests.conftest import ROOT, start_smartroom
 from tests.test_export import groundtruth_records
@@ -115,34 +114,6 @@ def test_an_lsl_sample_has_each_slot_track_and_joints_nan_when_inactive():
 # -- a real run --------------------------------------------------------------------------
 
 
-class UdpReceiver:
-    """A UDP socket read in a thread: every OSC bundle's messages (python-osc's parser)."""
-
-    def __init__(self, port: int):
-        from pythonosc.osc_packet import OscPacket
-        self._parse = OscPacket
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", port))
-        self.sock.settimeout(0.1)
-        self.bundles: list[list] = []
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                continue
-            self.bundles.append([(m.message.address, m.message.params) for m in self._parse(data).messages])
-
-    def close(self):
-        self._stop.set()
-        self.thread.join(2)
-        self.sock.close()
-
-
 def _vmc_frames(bundles) -> list[dict]:
     """Per bundle: t, root and bone (position, quaternion)."""
     out = []
@@ -223,7 +194,7 @@ def test_vmc_osc_lsl_and_json_receivers_get_the_runs_poses(tiny_recording, tmp_p
             chunk, ts = inlet.pull_chunk(timeout=0.2)
             lsl_samples += chunk
             lsl_times += ts
-            if vmc[1] is None and len(vmc[0].bundles) >= 25:
+            if vmc[1] is None and len(vmc[0].got) >= 25:
                 vmc[1] = UdpReceiver(vmc_port + 1)   # the second avatar's receiver comes up late
         chunk, ts = inlet.pull_chunk(timeout=1.0)
         lsl_samples += chunk
@@ -245,7 +216,7 @@ def test_vmc_osc_lsl_and_json_receivers_get_the_runs_poses(tiny_recording, tmp_p
     # VMC: every bundle is one person of one frame, rebuilt within 1 mm
     first_late = None
     for slot, receiver in enumerate(vmc):
-        frames = _vmc_frames(receiver.bundles)
+        frames = _vmc_frames(receiver.messages())
         assert frames, f"slot {slot}: nothing received"
         seen = []
         for got in frames:
@@ -267,7 +238,7 @@ def test_vmc_osc_lsl_and_json_receivers_get_the_runs_poses(tiny_recording, tmp_p
 
     # plain OSC: every frame, its active joints
     frames = {}
-    for msgs in osc.bundles:
+    for msgs in osc.messages():
         head = dict(msgs)["/smartroom/frame"]
         frames[head[0]] = {a: p for a, p in msgs[1:]}
     assert sorted(frames) == [r["frame"] for r in written]

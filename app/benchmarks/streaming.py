@@ -15,7 +15,6 @@ frame's handling to its last packet sent, their stats).
 """
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ import yaml
 
 from app.bus import BusConfig, Keys, Publisher, free_port, open_session
 from app.messages import JOINTS, Poses, Stats, decode
+from app.streaming.receiver import UdpReceiver
 
 PEOPLE = 6
 
@@ -43,33 +43,6 @@ def _crowd(frames: int, fps: float, people: int) -> list[tuple[np.ndarray, np.nd
         out.append((np.array([p["id"] for p in ps], np.int64),
                     np.array([[p["joints"][j] for j in JOINTS] for p in ps], float).reshape(-1, 15, 3)))
     return out
-
-
-class _Udp:
-    """A UDP socket read in a thread: (arrival wall time, datagram) pairs."""
-
-    def __init__(self, port: int):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
-        self.sock.bind(("127.0.0.1", port))
-        self.sock.settimeout(0.1)
-        self.got: list[tuple[float, bytes]] = []
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                continue
-            self.got.append((time.time(), data))
-
-    def close(self):
-        self._stop.set()
-        self.thread.join(2)
-        self.sock.close()
 
 
 def _osc_frame(data: bytes, fps: float, vmc: bool) -> int:
@@ -133,9 +106,9 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
         keys.alive(), lambda s: alive.add(Keys.last(s.key_expr)), history=True))
     udp = {}
     if "osc" in protocols:
-        udp["osc"] = [_Udp(ports["osc"])]
+        udp["osc"] = [UdpReceiver(ports["osc"])]
     if "vmc" in protocols:
-        udp["vmc"] = [_Udp(ports["vmc"] + s) for s in range(people)]
+        udp["vmc"] = [UdpReceiver(ports["vmc"] + s) for s in range(people)]
     procs = [subprocess.Popen([sys.executable, "-m", "app.cli", "worker", w["name"], "--layout", str(layout),
                                "--connect", f"tcp/127.0.0.1:{hub}"], stdout=subprocess.DEVNULL,
                               stderr=subprocess.PIPE, text=True) for w in workers[n_stand_ins:]]
