@@ -100,4 +100,6 @@ def test_a_compile_mid_run_is_not_the_runs_speed(long_recording, tmp_path):
     compiling = [i for i, ln in enumerate(heads) if "starting=compiling" in ln]
     during = heads[compiling[0]:compiling[-1] + 2]              # the compile, and the line after it
     assert all("verdict=waiting" in ln and "bottleneck" not in ln for ln in during), "\n".join(heads)
-    assert "verdict=real-time" in heads[-1], "\n".join(heads)       # the end: the run's own rate
+    # after it, the run's own rate (some line: on a machine loaded by other tests a paced
+    # run may fall behind later, which the monitor then says, rightly)
+    assert any("verdict=real-time" in ln for ln in heads[compiling[-1] + 1:]), "\n".join(heads)
