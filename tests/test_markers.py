@@ -88,7 +88,7 @@ def test_the_marker_apf_follows_a_walking_person_from_synthetic_detections():
     grid = {"dr": (0.9,), "fp": (0,), "sigma2": (4.0,), "filters": ((3, 700),)}
     ours = bench_marker(("walk1",), frames=30, cost="both_ways", grid=grid)[0]
     thesis = bench_marker(("walk1",), frames=30, cost="thesis", grid=grid)[0]
-    assert ours["mmta"] >= 0.9 and ours["mpjpe_mm"] < 60, ours
+    assert ours["mmta"] >= 0.85 and ours["mpjpe_mm"] < 60, ours
     assert thesis["mmta"] < ours["mmta"] - 0.3, (thesis, ours)
 
 

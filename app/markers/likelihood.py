@@ -152,15 +152,16 @@ def _triangulate(cam_a, cam_b, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return 0.5 * (oa + s[:, None] * da + ob + t[:, None] * db)
 
 
-def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray]:
+def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which detections (flat, view by view) are a marker seen from several views: with
     three views or more, one detection of another view lies within ``tol`` of its epipolar
     line and the point the two triangulate projects within ``tol`` of a detection of a
     third view (a false detection rarely has both); with two views, the first test alone.
-    Also the 3D points (K, 3) the supported pairs triangulate (marker candidates)."""
+    Also the 3D points (K, 3) the supported pairs triangulate (marker candidates), and
+    those (K2, 3) of every consistent pair (a marker two views see, or a chance match)."""
     n_views = len(ideal)
     out = [np.zeros(len(d), bool) for d in ideal]
-    points = []
+    points, pairs = [], []
     for a in range(n_views):
         for b in range(a + 1, n_views):
             if not len(ideal[a]) or not len(ideal[b]):
@@ -169,11 +170,12 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
             qa, qb = np.nonzero(d < tol)
             if not len(qa):
                 continue
+            X = _triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb])
+            pairs.append(X)
             if n_views < 3:
                 out[a][qa] = out[b][qb] = True
-                points.append(_triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb]))
+                points.append(X)
                 continue
-            X = _triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb])
             seen = np.zeros(len(qa), bool)
             for c in range(n_views):
                 if c in (a, b) or not len(ideal[c]):
@@ -186,7 +188,9 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
             out[a][qa[seen]] = out[b][qb[seen]] = True
             points.append(X[seen])
     flags = np.concatenate(out) if out else np.zeros(0, bool)
-    return flags, (np.concatenate(points) if points else np.zeros((0, 3)))
+    def stack(parts):
+        return np.concatenate(parts) if parts else np.zeros((0, 3))
+    return flags, stack(points), stack(pairs)
 
 
 class MarkerScorer:
@@ -204,6 +208,7 @@ class MarkerScorer:
         self.explain = float(explain)        # both_ways: the weight of the detections' term
         self.candidates = bool(candidates)   # keep the supported pairs' 3D points (the arms' proposals)
         self.points = np.zeros((0, 3))
+        self.pair_points = np.zeros((0, 3))
         self.K = np.array([c.K for c in self.cameras])
         self.R = np.array([c.R for c in self.cameras])
         self.t = np.array([c.t for c in self.cameras])
@@ -221,9 +226,11 @@ class MarkerScorer:
         self.start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
         self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
         if self.cost == "both_ways" or self.candidates:
-            self.supported, self.points = supported_detections(ideal, self.cameras, self.F, self.support_px)
+            self.supported, self.points, self.pair_points = supported_detections(ideal, self.cameras, self.F,
+                                                                                 self.support_px)
         else:
             self.supported, self.points = np.zeros(len(self.det), np.bool_), np.zeros((0, 3))
+            self.pair_points = np.zeros((0, 3))
         if self.cost != "both_ways":
             self.supported = np.zeros(len(self.det), np.bool_)
 

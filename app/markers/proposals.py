@@ -29,6 +29,10 @@ _HIP = {"l": 9, "r": 12}
 _ANKLE = {"l": 11, "r": 14}
 _ANKLE_NEED = {side: segments_needed([_ANKLE[side]]) for side in ("l", "r")}
 IK_STEPS = 6
+#: of the stature: how far from its last place a two-view ankle candidate may be; 0 = none
+#: (off: on synthetic detections 0.2 gained, held-out walk1 + occluded1 0.881 -> 0.905, but from
+#: rendered images it pulled gesture1's knees to chance pairs, 0.886 -> 0.771: docs/benchmarks.md)
+FOOT_SEARCH = 0.0
 IK_DAMPING = 1e-3
 
 
@@ -85,7 +89,8 @@ class LimbProposals:
     ``joints`` (15, 3) of the person's last pose; None-safe: :meth:`of` returns None
     without candidates near the person."""
 
-    def __init__(self, candidates: np.ndarray, joints: np.ndarray, height: float, yaw: float):
+    def __init__(self, candidates: np.ndarray, joints: np.ndarray, height: float, yaw: float,
+                 pairs: np.ndarray | None = None):
         self.height = float(height)
         H = self.height
         d_sh = np.linalg.norm(candidates[:, None] - joints[[3, 6]][None], axis=2).min(axis=1)
@@ -94,6 +99,12 @@ class LimbProposals:
         d_hip = np.linalg.norm(candidates[:, None] - hips[None], axis=2).min(axis=1)
         below = candidates[:, 2] < hips[:, 2].max() - 0.1 * H
         self.feet = candidates[(d_hip < 0.52 * H) & (d_hip > 0.2 * H) & below]
+        if FOOT_SEARCH > 0 and pairs is not None and len(pairs):
+            # an ankle low in the room is often seen by two cameras only (no third view
+            # supports it): pairs near the last ankles and near the floor are candidates too
+            d_ank = np.linalg.norm(pairs[:, None] - joints[[_ANKLE["l"], _ANKLE["r"]]][None], axis=2).min(axis=1)
+            low = pairs[(d_ank < FOOT_SEARCH * H) & (pairs[:, 2] < 0.15 * H)]
+            self.feet = np.concatenate([self.feet, low])
         self.arms = None
         if len(self.hands):
             det = Detections(head=joints[2], top=float(joints[2, 2] + 0.066 * H), centroid=joints[0],
@@ -101,8 +112,9 @@ class LimbProposals:
             self.arms = Importance(det, H)
 
     @classmethod
-    def of(cls, candidates, joints, height, yaw):
-        p = cls(candidates, joints, height, yaw) if len(candidates) else None
+    def of(cls, candidates, joints, height, yaw, pairs=None):
+        p = cls(candidates, joints, height, yaw, pairs) if len(candidates) or (pairs is not None and len(pairs)) \
+            else None
         return p if p is not None and (p.arms is not None or len(p.feet)) else None
 
     def __call__(self, n: int, rng: np.random.Generator, base: np.ndarray, dofs=None) -> np.ndarray:

@@ -99,10 +99,10 @@ class MarkerTracker:
     def _proposals(self):
         """The limb proposals (:mod:`app.markers.proposals`) of this frame's supported
         detections around the person's last pose; None without candidates."""
-        if self.filter.importance_fraction <= 0 or not len(self.scorer.points):
+        if self.filter.importance_fraction <= 0 or not (len(self.scorer.points) or len(self.scorer.pair_points)):
             return None
         return LimbProposals.of(agreed_points(self.scorer.points, CANDIDATE_RADIUS), self.model.joints(self.state),
-                                self.model.height, float(self.state[3]))
+                                self.model.height, float(self.state[3]), self.scorer.pair_points)
 
     def joints(self) -> np.ndarray:
         return self.model.joints(self.state)
