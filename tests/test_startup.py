@@ -93,7 +93,10 @@ def test_a_compile_mid_run_is_not_the_runs_speed(long_recording, tmp_path):
     s = json.loads((out / "stats.json").read_text())
     assert s["final_stage"] == "compiling"
     assert s["startup"]["compile_after_first_frame_s"] == pytest.approx(3.0, abs=0.3)
-    assert 0.85 <= s["rtf"] <= 1.1, s["rtf"]                      # paced at the recording's rate
+    # paced at the recording's rate, the compile not counted: counted, 100 frames at 25 fps
+    # and 3 s of compile would read 4 / 7 = 0.57; a machine busy with the other test process
+    # has read 0.79 (0.85 before: it failed two full runs in four on 2026-11-27)
+    assert 0.72 <= s["rtf"] <= 1.1, s["rtf"]
     assert s["rtf_with_startup"] < s["rtf"] and 0 < s["startup"]["s"] < time.monotonic() - t0
     heads = [ln for ln in r.stdout.splitlines() if ln.startswith("monitor: rtf=")]
     assert any("starting=compiling" in ln for ln in heads), heads   # it said what was going on
