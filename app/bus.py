@@ -124,6 +124,9 @@ class Keys:
     def keypoints(self) -> str:
         return f"{self.root}/keypoints"
 
+    def markers(self, camera: str = "*") -> str:
+        return f"{self.root}/markers/{camera}"
+
     def stats(self, worker: str = "*") -> str:
         return f"{self.root}/stats/{worker}"
 
@@ -140,8 +143,8 @@ class Keys:
         return f"{self.root}/alive/{worker}"
 
     def stage(self, stage: str, camera: str = "*") -> str:
-        """The key expression of what a stage publishes (per camera for frames and masks)."""
-        per_camera = {"frame": self.frame, "mask": self.mask}
+        """The key expression of what a stage publishes (per camera for frames, masks and markers)."""
+        per_camera = {"frame": self.frame, "mask": self.mask, "markers": self.markers}
         if stage in per_camera:
             return per_camera[stage](camera)
         return f"{self.root}/{stage}"

@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = [
     "MessageError", "Message", "Frame", "Mask", "Voxels", "Tracks", "Poses", "Stats",
-    "EndOfStream", "Ack", "encode", "decode", "JOINTS", "Blobs", "Keypoints", "Heartbeat",
+    "EndOfStream", "Ack", "encode", "decode", "JOINTS", "Blobs", "Keypoints", "Markers", "Heartbeat",
 ]
 
 MAGIC = b"SRM"
@@ -594,3 +594,32 @@ class Keypoints(Message):
                 raise MessageError("Keypoints: a confidence outside 0..1")
             if np.abs(p[..., :2]).max() > 4 * _MAX_SIDE:
                 raise MessageError("Keypoints: a point far outside every image")
+
+
+@dataclass(kw_only=True)
+class Markers(Message):
+    """The colour markers one camera saw in one frame (marker-based capture, thesis
+    §6.4.1.1, :mod:`app.markers.detector`): ``points`` (Q, 2) float32, the blobs' centroids
+    in the camera's calibrated pixels, unlabelled; ``cameras`` the frame set (see
+    :class:`Frame`: a pose worker in marker mode waits for every camera of it).
+    ``worker`` names the sender (a markers worker, or a segmentation worker that also
+    detects them)."""
+
+    TYPE_ID: ClassVar[int] = 13
+    ARRAYS: ClassVar[tuple[str, ...]] = ("points",)
+    MAX_POINTS: ClassVar[int] = 4096
+    worker: str = ""
+    camera: str = ""
+    cameras: list = field(default_factory=list)
+    points: np.ndarray = None
+
+    def validate(self) -> None:
+        super().validate()
+        _name(self, "worker")
+        _name(self, "camera")
+        _names(self, "cameras")
+        p = _array(self, "points", "<f4", (None, 2), allow_empty=True)
+        if len(p) > self.MAX_POINTS:
+            raise MessageError(f"Markers: {len(p)} detections (at most {self.MAX_POINTS})")
+        if p.size and (not np.all(np.isfinite(p)) or np.abs(p).max() > _MAX_SIDE):
+            raise MessageError("Markers: a detection outside every image")

@@ -22,6 +22,7 @@ KINDS = {
     "tracking": "workers.tracking:Tracking",
     "pose": "workers.pose:Pose",
     "keypoints": "workers.keypoints:KeypointsWorker",
+    "markers": "workers.markers:MarkersWorker",
     "recorder": "workers.recorder:Recorder",
     "viewer": "workers.viewer:Viewer",
     "monitor": "workers.monitor:Monitor",
@@ -58,13 +59,13 @@ def upstream_of(layout, spec) -> list[str]:
     for other in layout.workers:
         if other.name == spec.name:
             continue
-        cls = worker_class(other.kind)
-        if not cls.PRODUCES:
+        produced = worker_class(other.kind).produces(other)
+        if not produced:
             continue  # sinks are nobody's upstream
         if "stats" in me.CONSUMES:
             names.append(other.name)
             continue
-        for stage in set(cls.PRODUCES) & me.consumes(spec):
+        for stage in produced & me.consumes(spec):
             theirs = _cameras(other)
             if stage in me.PER_CAMERA and mine is not None and theirs is not None and not (mine & theirs):
                 continue
@@ -76,4 +77,4 @@ def upstream_of(layout, spec) -> list[str]:
 def producers_of(layout, stage: str) -> list[str]:
     """Names of the workers of ``layout`` that publish ``stage`` (e.g. the pose workers
     sharing a frame's tracks)."""
-    return [w.name for w in layout.workers if stage in worker_class(w.kind).PRODUCES]
+    return [w.name for w in layout.workers if stage in worker_class(w.kind).produces(w)]

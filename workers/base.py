@@ -134,7 +134,7 @@ class Worker(Restarts):
     ORDER: ClassVar[int | None] = None   # position in the chain; None for sinks (recorder, viewer, monitor)
     CONSUMES: ClassVar[tuple[str, ...]] = ()
     PRODUCES: ClassVar[tuple[str, ...]] = ()
-    PER_CAMERA: ClassVar[tuple[str, ...]] = ("frame", "mask")
+    PER_CAMERA: ClassVar[tuple[str, ...]] = ("frame", "mask", "markers")
     DISPLAY: ClassVar[bool] = False      # an interactive view: not started with --headless
     DEFAULTS: ClassVar[dict] = {}
     #: allowed ranges of numeric parameters ``{name: (lo, hi)}``, checked by the config loader
@@ -402,6 +402,11 @@ class Worker(Restarts):
     def consumes(cls, spec: WorkerSpec) -> set[str]:
         """The stages this worker, as configured, takes in."""
         return set(cls.CONSUMES)
+
+    @classmethod
+    def produces(cls, spec: WorkerSpec) -> set[str]:
+        """The stages this worker, as configured, publishes."""
+        return set(cls.PRODUCES)
 
     @classmethod
     def acknowledges(cls, spec: WorkerSpec, layout: Layout) -> bool:

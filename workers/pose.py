@@ -51,6 +51,13 @@ wrists triangulated from them are the importance function's hands
 (``keypoint_hands``). It needs the run's calibration, and a keypoints worker in the
 layout (``deploy/layouts/keypoints.yaml``).
 
+``mode: markers`` is marker-based capture (thesis §6.4, §6.6, :mod:`app.markers.people`,
+docs/markers.md): each person's pose is fitted by the annealed particle filter to the
+colour markers the layout's markers workers (or segmentation workers with a ``markers``
+model) detect in every camera of the frame; the voxels only give a new track its stature.
+A frame waits for every camera's markers as for its voxels and tracks. ``marker_*`` are
+:class:`~app.markers.people.MarkerSettings`. The output is the same ``Poses``.
+
 A restarted pose worker carries every person's filter on: the estimator's state
 (:mod:`app.pose.snapshot`) is saved with the frame it belongs to every
 ``snapshot_frames`` frames (and with the worker's state); the next incarnation restores
@@ -65,7 +72,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.frame_shares import frame_share, owns, valid_share
-from app.messages import Keypoints, Poses, Tracks, Voxels
+from app.messages import Keypoints, Markers, Poses, Tracks, Voxels
 from app.pose.selection import pose_frame
 from workers.base import Worker
 from workers.restarts import REPLAY_FRAMES
@@ -78,10 +85,18 @@ class Pose(Worker):
     ORDER = 5
     CONSUMES = ("voxels", "tracks")
     PRODUCES = ("poses",)
-    ACCEPTS = (Voxels, Tracks, Keypoints)
+    ACCEPTS = (Voxels, Tracks, Keypoints, Markers)
     INBOX_DEPTH = 4
     ACK_ON_HANDLE = False   # a frame is finished once posed (its voxels and tracks are both in)
     DEFAULTS = {
+        "mode": "markerless",       # markerless (voxels, Ch. 6-7) or markers (coloured markers, §6.4)
+        "marker_particles": 700,    # markers: N_pL (app.markers.people.MarkerSettings)
+        "marker_layers": 3,         # markers: L
+        "marker_rho": 20.0,         # markers: px, a landmark's detection is the nearest within rho (Eq. 6.5)
+        "marker_cost": "both_ways",  # markers: thesis (Eqs. 6.6-6.9), reprojection or both_ways
+        "marker_proposals": 0.2,    # markers: share of the first layer from the triangulated markers
+        "marker_acquire": 4,        # markers: filter runs on a track's first frame
+        "marker_settle": 10,        # markers: frames a new track is followed facing either way
         "method": "shbm",           # shbm, apf, ddm, shbm+ddm
         "density": 2.0,             # delta of Eq. 6.26 (1 = the data's voxel size)
         "likelihood": "partitioned",  # or global
@@ -136,7 +151,8 @@ class Pose(Worker):
         "snapshot_frames": 4,       # the estimator's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
-    CHOICES = {"method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
+    CHOICES = {"mode": ("markerless", "markers"), "marker_cost": ("thesis", "reprojection", "both_ways"),
+               "method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
                "ik": ("table", "straight"), "voxels": ("consensus", "tolerant", "all"),
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
@@ -148,13 +164,18 @@ class Pose(Worker):
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
               "keypoints": (0.0, 10.0), "keypoint_gate": (0.01, 10.0), "keypoint_conf": (0.0, 1.0),
-              "snapshot_frames": (1, 1000), "threads": (1, 64)}
+              "snapshot_frames": (1, 1000), "threads": (1, 64),
+              "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_rho": (1.0, 500.0),
+              "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
+              "marker_settle": (0, 1000)}
 
     @classmethod
     def consumes(cls, spec) -> set[str]:
-        """Voxels and tracks; the keypoints too when the keypoint term is on."""
+        """Voxels and tracks; the keypoints too when the keypoint term is on, the markers in
+        marker mode."""
         on = float(spec.params.get("keypoints", 0) or 0) > 0
-        return set(cls.CONSUMES) | ({"keypoints"} if on else set())
+        markers = spec.params.get("mode") == "markers"
+        return set(cls.CONSUMES) | ({"keypoints"} if on and not markers else set()) | ({"markers"} if markers else set())
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -168,6 +189,12 @@ class Pose(Worker):
         if share is not None and not valid_share(share):
             raise InputError(f"pose: share must be [k, n] with 0 <= k < n, got {share!r}")
         self.share = frame_share(p)   # (k, n) of the track ids, or None
+        self.marker_people = None
+        self.markers: dict[int, dict[str, np.ndarray]] = {}
+        self.markers_newest: dict[str, int] = {}   # the newest frame of each camera's markers
+        self.marker_frames = [0, 0]   # frames posed with every camera's markers, frames posed
+        if p.get("mode") == "markers":
+            self._setup_markers()
         # the silhouette term projects the model into the cameras the voxels were carved from
         self.calibration = self.run_calibration() if (self.settings.silhouette > 0 or self.settings.keypoints > 0) \
             else None
@@ -203,6 +230,36 @@ class Pose(Worker):
             from app.pose.detections import arm_table
             arm_table("l"), arm_table("r")      # the inverse-kinematics tables, before the first frame
 
+    def _marker_settings(self):
+        from app.markers.people import MarkerSettings
+        p = self.params
+        return MarkerSettings(particles=int(p["marker_particles"]), layers=int(p["marker_layers"]),
+                              rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
+                              proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
+                              settle=int(p["marker_settle"]), seed=int(p["seed"]))
+
+    def _setup_markers(self) -> None:
+        """Marker mode: the run's cameras, a detector in the layout, the kernels compiled."""
+        from app.markers.people import MarkerPeople
+        from workers import producers_of
+        if not producers_of(self.layout, "markers"):
+            raise InputError("pose: mode markers but the layout detects no markers (a markers worker, or a "
+                             "segmentation worker with a markers model: deploy/layouts/markers.yaml)")
+        self.marker_calibration = self.run_calibration()
+        if self.marker_calibration is None:
+            raise InputError("pose: mode markers needs the run's calibration (the recording's, or --calibration)")
+        self.marker_people = MarkerPeople(self.marker_calibration.cameras, self._marker_settings())
+        warm = MarkerPeople(self.marker_calibration.cameras[:2], self._marker_settings())
+        warm.s.particles, warm.s.acquire = 20, 1
+        blob = np.random.default_rng(0).uniform([-.2, -.2, 0], [.2, .2, 1.7], (40, 3))
+        warm.update([np.zeros((0, 2)), np.zeros((0, 2))], [0], np.zeros((1, 3)), blob, np.zeros(40, np.int64))
+
+    def admit(self, key: str, msg) -> str | None:
+        if isinstance(msg, Markers) and (self.marker_people is None
+                                         or msg.camera not in self.marker_calibration.names):
+            return "unknown camera" if self.marker_people is not None else "markers outside marker mode"
+        return None
+
     @staticmethod
     def _grid(msg: Voxels) -> tuple:
         return (round(float(msg.voxel_size), 6), tuple(float(v) for v in msg.origin), tuple(int(d) for d in msg.dims))
@@ -228,6 +285,8 @@ class Pose(Worker):
         self.tracks.clear()
         self.keypoints.clear()
         self.keypoints_newest.clear()
+        self.markers.clear()
+        self.markers_newest.clear()
         self._take_over(None)   # a snapshot belongs to its epoch's frame numbers
         self.catching = False
 
@@ -245,11 +304,18 @@ class Pose(Worker):
         arrays, mine = earlier
         frame = mine["frame"]
         try:
-            est = restore_estimator(self._settings_for(grid), arrays)
-        except SnapshotError as exc:
+            if self.marker_people is not None:
+                from app.markers.people import restore_people
+                est = self.marker_people = restore_people(self.marker_calibration.cameras, self._marker_settings(),
+                                                          arrays)
+            else:
+                est = restore_estimator(self._settings_for(grid), arrays)
+        except (SnapshotError, ValueError) as exc:
             self.log.warning("%s: the pose filters start afresh", exc)
             return
-        self.estimator, self.grid, self.done = est, grid, frame
+        if self.marker_people is None:
+            self.estimator = est
+        self.grid, self.done = grid, frame
         self.at = self.saved_at = (mine["epoch"], frame, mine["t"], grid)
         self.catching = True
         for d in (self.voxels, self.tracks):
@@ -258,11 +324,15 @@ class Pose(Worker):
         self.log.warning("pose estimator restored at frame %d: people %s", frame, sorted(est.people))
 
     def state_arrays(self) -> dict | None:
-        if getattr(self, "at", None) is None or self.at == self.saved_at or self.estimator is None:
+        people = getattr(self, "marker_people", None)
+        if getattr(self, "at", None) is None or self.at == self.saved_at or (self.estimator is None and people is None):
             return None
-        from app.pose.snapshot import estimator_state
         epoch, frame, t, grid = self.at
         self.saved_at = self.at
+        if people is not None:
+            from app.markers.people import state_arrays
+            return self.stamp_arrays(state_arrays(people), epoch, frame, t, grid=grid)
+        from app.pose.snapshot import estimator_state
         return self.stamp_arrays(estimator_state(self.estimator), epoch, frame, t, grid=grid)
 
     # -- frames ------------------------------------------------------------------------
@@ -273,7 +343,7 @@ class Pose(Worker):
             self._take_over(msg)
         elif self.earlier_pending:   # tracks (keypoints) before the first voxels: kept for then
             self._store(msg)
-            for d in (self.tracks, self.keypoints):
+            for d in (self.tracks, self.keypoints, self.markers):
                 for f in sorted(d)[:-(KEEP_FRAMES + REPLAY_FRAMES)]:
                     del d[f]
             return
@@ -286,7 +356,11 @@ class Pose(Worker):
         self._receive(msg)
 
     def _store(self, msg) -> None:
-        if isinstance(msg, Keypoints):
+        if isinstance(msg, Markers):
+            if self.marker_people is not None:
+                self.markers.setdefault(msg.frame, {})[msg.camera] = msg.points
+                self.markers_newest[msg.camera] = max(msg.frame, self.markers_newest.get(msg.camera, -1))
+        elif isinstance(msg, Keypoints):
             if self.settings.keypoints > 0 and msg.worker in self.keypoint_workers:
                 self.keypoints.setdefault(msg.frame, {})[msg.worker] = msg
                 self.keypoints_newest[msg.worker] = max(msg.frame, self.keypoints_newest.get(msg.worker, -1))
@@ -298,10 +372,15 @@ class Pose(Worker):
             return
         self._store(msg)
         keep = KEEP_FRAMES + (REPLAY_FRAMES if self.catching else 0)   # what is sent again comes in two streams
-        for d in (self.voxels, self.tracks, self.keypoints):
+        for d in (self.voxels, self.tracks, self.keypoints, self.markers):
             for f in sorted(d)[:-keep]:
                 del d[f]
         ready = set(self.voxels) & set(self.tracks)
+        if self.marker_people is not None:
+            # a frame waits for the markers of every camera of its voxels, unless that camera
+            # has sent a later frame's (they come in order: these were lost or refused)
+            ready = {f for f in ready if all(c in self.markers.get(f, {}) or self.markers_newest.get(c, -1) > f
+                                             for c in self.voxels[f].cameras)}
         if self.keypoint_workers:
             # a frame waits for every keypoints worker, unless one has sent a later frame
             # (what it sends comes in order: that frame's keypoints were lost or refused)
@@ -311,12 +390,13 @@ class Pose(Worker):
         # catching up, every complete frame is posed in order (the estimator must see each
         # frame the undisturbed run saw); otherwise the newest: older ones are behind
         for frame in ready if self.catching else ready[-1:]:
-            self._pose(self.voxels.pop(frame), self.tracks.pop(frame), self.keypoints.pop(frame, None))
-            for d in (self.voxels, self.tracks, self.keypoints):
+            self._pose(self.voxels.pop(frame), self.tracks.pop(frame), self.keypoints.pop(frame, None),
+                       self.markers.pop(frame, None))
+            for d in (self.voxels, self.tracks, self.keypoints, self.markers):
                 for f in [f for f in d if f <= frame]:
                     del d[f]
 
-    def _pose(self, vox: Voxels, tracks: Tracks, keypoints: dict | None = None) -> None:
+    def _pose(self, vox: Voxels, tracks: Tracks, keypoints: dict | None = None, markers: dict | None = None) -> None:
         publish = not self.put_out_before(vox.frame)   # put out by the earlier incarnation: catching up
         if self.catching and not self.caught_up_frames and vox.frame > self.done + 1:
             self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
@@ -325,7 +405,7 @@ class Pose(Worker):
             self.catching = False   # the caught-up frames are said when it publishes (Worker.publish)
         self.done = vox.frame
         try:
-            self._estimate(vox, tracks, publish, keypoints)
+            self._estimate(vox, tracks, publish, keypoints, markers)
         finally:
             if publish:
                 self.finished(vox.frame)   # older frames still waiting are given up with it
@@ -335,11 +415,22 @@ class Pose(Worker):
         if publish and vox.frame % int(self.params["snapshot_frames"]) == 0:
             self.save_arrays()
 
-    def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True, keypoints: dict | None = None) -> None:
+    def _estimate(self, vox: Voxels, tracks: Tracks, publish: bool = True, keypoints: dict | None = None,
+                  markers: dict | None = None) -> None:
         ids = np.asarray(tracks.ids, dtype=np.int64)
         positions = np.asarray(tracks.positions, dtype=np.float64).reshape(-1, 3)
         # every track takes part in the voxel ownership; only this worker's share is posed
         only = None if self.share is None else (lambda t: owns(self.share, t))
+        if self.marker_people is not None:
+            from app.markers.people import pose_marker_frame
+            markers = markers or {}
+            if len(ids):
+                self.marker_frames[1] += 1
+                self.marker_frames[0] += all(c in markers for c in vox.cameras)
+            result = pose_marker_frame(self.marker_people, vox, ids, positions, markers, float(self.params["reach"]),
+                                       only=only)
+            self._publish_poses(vox, result, publish)
+            return
         people_kp = None
         if self.keypoint_workers:
             from app.keypoints.fusion import frame_keypoints
@@ -353,6 +444,9 @@ class Pose(Worker):
             self._count_silhouettes(vox.frame, no_silhouettes)
         if kept is not None:
             self.kept.append(kept)
+        self._publish_poses(vox, result, publish)
+
+    def _publish_poses(self, vox: Voxels, result: dict, publish: bool) -> None:
         order = sorted(result)
         self.people_counts.append(len(order))
         joints = np.array([result[t][0] for t in order], dtype=np.float64).reshape(-1, 15, 3)
@@ -376,4 +470,6 @@ class Pose(Worker):
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
                 "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
                 "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0])),
-                "keypoint_frames": list(getattr(self, "keypoint_frames", [0, 0]))}
+                "keypoint_frames": list(getattr(self, "keypoint_frames", [0, 0])),
+                **({"mode": "markers", "marker_frames": list(self.marker_frames)}
+                   if getattr(self, "marker_people", None) is not None else {})}

@@ -151,7 +151,7 @@ class Reconstruction(Worker):
 
         out: dict[str, set] = {n: set() for n in self.names}
         for w in self.layout.workers:
-            if "mask" not in worker_class(w.kind).PRODUCES:
+            if "mask" not in worker_class(w.kind).produces(w):
                 continue
             cams = w.params.get("cameras")
             for n in self.names:
@@ -167,7 +167,7 @@ class Reconstruction(Worker):
 
         masks, colours = {}, {}
         for w in self.layout.workers:
-            if "mask" not in worker_class(w.kind).PRODUCES:
+            if "mask" not in worker_class(w.kind).produces(w):
                 continue
             mask_scale, colour_scale = scales(w, self.layout, calib)
             cams = w.params.get("cameras")

@@ -111,7 +111,7 @@ class Recorder(Worker):
             raise InputError("the recorder needs an output folder (--out)")
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
-        produced = {s for w in self.layout.workers for s in worker_class(w.kind).PRODUCES}
+        produced = {s for w in self.layout.workers for s in worker_class(w.kind).produces(w)}
         self.tracks = JsonLinesWriter(self.out / "tracks.jsonl") if "tracks" in produced else None
         self.poses = JsonLinesWriter(self.out / "poses.jsonl") if "poses" in produced else None
         self.shares = SharedPoses(producers_of(self.layout, "poses"))   # several pose workers: one line a frame

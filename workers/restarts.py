@@ -167,7 +167,7 @@ class Restarts:
         """Workers of the layout that take this worker's outputs (and acknowledge or keep them)."""
         if self._replay_to is None:
             from workers import upstream_of, worker_class
-            mine = set(self.PRODUCES)
+            mine = self.produces(self.spec)
             self._replay_to = {w.name for w in self.layout.workers
                                if w.name != self.name and not worker_class(w.kind).DISPLAY
                                and mine & worker_class(w.kind).consumes(w)
@@ -328,7 +328,8 @@ class Restarts:
             outputs = [(str(names[i]), entries[f"worker_output{i}"].tobytes()) for i in range(len(names))]
         except (KeyError, ValueError, TypeError, IndexError, AttributeError):
             return []
-        produced = {self.keys.stage(stage) for stage in self.PRODUCES if stage not in self.PER_CAMERA}
+        produced = {self.keys.stage(stage) for stage in self.produces(self.spec)
+                    if stage not in self.PER_CAMERA}
         return [(k, p) for k, p in outputs if k in produced]
 
     def _journal(self, kind: str, frame: int) -> None:

@@ -7,6 +7,11 @@ The background model starts from the recording's ``background/<cam>.png`` when t
 is one; otherwise from the per-pixel temporal median of frames spread across the
 recording (real sessions rarely have empty-room shots); live cameras learn it from
 the stream.
+
+``markers``: a colour markers' chroma model (``smartroom markers learn``; ``recording``:
+the recording's ``markers.json``): the worker also detects the markers in each frame and
+publishes them (:class:`~app.messages.Markers`, as a markers worker does, in this
+process; the grabber then sends full-size frames).
 """
 from __future__ import annotations
 
@@ -35,7 +40,8 @@ def scales(spec, layout, calibration) -> tuple[int, int]:
 def frame_scale(layout, calibration) -> int:
     """How much smaller than the camera a source may send the frames: the largest power of
     two that divides every mask and colour scale of the layout's segmentation workers
-    (:func:`scales`), every keypoints worker's ``scale`` and every camera's width and height
+    (:func:`scales`), every keypoints and markers worker's ``scale`` (1 for a segmentation
+    worker that detects markers) and every camera's width and height
     (HD frames are 25 MB a set; the segmentation reduces them anyway). 1: full size."""
     from math import gcd
 
@@ -49,6 +55,9 @@ def frame_scale(layout, calibration) -> int:
             need = gcd(need, colour)
     for name in producers_of(layout, "keypoints"):   # the keypoint detector's crops want detail
         need = gcd(need, int(layout.worker(name).params.get("scale", 1)))
+    for name in producers_of(layout, "markers"):     # markers are a few pixels across
+        spec = layout.worker(name)
+        need = gcd(need, 1 if spec.kind == "segmentation" else int(spec.params.get("scale", 1)))
     scale = 1
     while need and need % (scale * 2) == 0 and all(
             c.width % (scale * 2) == 0 and c.height % (scale * 2) == 0 for c in calibration.cameras):
@@ -79,12 +88,18 @@ class Segmentation(Worker):
         "second_chance": 0.0,        # pixels next to the foreground farther than this from the background (0: off)
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
+        "markers": "",               # the markers' chroma model: also detect them (recording: its markers.json)
     }
     RANGES = {"scale": (0, 16), "history": (1, 100000), "var_threshold": (0.1, 10000.0),
               "shadow_threshold": (0.0, 1.0), "learning_rate": (-1.0, 1.0), "bootstrap": (0, 100000),
               "open_px": (0, 99), "close_px": (0, 99), "colour_scale": (-1, 16), "median_frames": (1, 1000),
               "shadow_floor": (0.0, 1.0), "shadow_residual": (0.0, 255.0), "fill_holes": (0, 10 ** 7),
               "second_chance": (0.0, 255.0)}
+
+    @classmethod
+    def produces(cls, spec) -> set[str]:
+        """Masks; the markers too with a ``markers`` model."""
+        return set(cls.PRODUCES) | ({"markers"} if spec.params.get("markers") else set())
 
     def setup(self) -> None:
         from calibration import load_calibration
@@ -108,6 +123,11 @@ class Segmentation(Worker):
             self._segmenter(cam)
         if cams and calib is not None:
             warm_up(self.seg_params, calib.camera(cams[0]))
+        self.markers = None
+        if self.params["markers"]:
+            from app.markers.detector import model_for_run
+            path = str(self.params["markers"])
+            self.markers = model_for_run("" if path == "recording" else path, run.recording, "segmentation")
 
     def _background(self, cam: str):
         if self.recording is None:
@@ -148,6 +168,11 @@ class Segmentation(Worker):
             colour = seg.small   # the frame the mask was computed on
         elif scale:
             colour = shrink(msg.image, scale // msg.scale)
+        if self.markers is not None:
+            from app.markers.detector import frame_markers
+            from workers.markers import markers_message
+            self.publish(self.keys.markers(msg.camera),
+                         markers_message(msg, self.name, frame_markers(msg.image, self.markers, msg.scale)))
         self.publish(self.keys.mask(msg.camera),
                      Mask.pack(mask, frame=msg.frame, stamp=msg.stamp, t=msg.t, camera=msg.camera,
                                colour_scale=max(1, scale), colour=colour, cameras=list(msg.cameras)))

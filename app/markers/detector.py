@@ -6,7 +6,9 @@ labelled pixels; each blob of marker pixels is one detection, at its centroid.
 :class:`ChromaModel` is the learnt colour (mean and covariance of (Cr, Cb), a threshold
 on the squared distance: 5 sigma by default, and a minimum luma so that dark noise is
 not coloured); :func:`detect_markers` returns the detections of one image, (Q, 2)
-pixels. The model is a small JSON file (``smartroom markers learn``).
+pixels, :func:`frame_markers` those of a frame the grabber may have reduced, in the
+camera's calibrated pixels. The model is a small JSON file (``smartroom markers learn``;
+a simulated recording made with markers carries its own, ``markers.json``).
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import numpy as np
 
 from app.errors import InputError
 
-__all__ = ["ChromaModel", "learn_chroma", "detect_markers", "marker_mask"]
+__all__ = ["ChromaModel", "learn_chroma", "detect_markers", "marker_mask", "chroma_table", "frame_markers", "model_for_run"]
 
 
 @dataclass
@@ -67,13 +69,24 @@ def learn_chroma(image: np.ndarray, points, radius: int = 2, threshold: float = 
     return ChromaModel(s.mean(axis=0), cov, float(threshold))
 
 
+def chroma_table(model: ChromaModel) -> np.ndarray:
+    """The model's test for every (Cr, Cb) pair: (65536,) uint8, indexed ``Cr * 256 + Cb``
+    (one look-up a pixel instead of the quadratic form: 1 ms instead of 7 for 640x480)."""
+    table = getattr(model, "_table", None)
+    if table is None:
+        cr, cb = np.meshgrid(np.arange(256.0), np.arange(256.0), indexing="ij")
+        d0, d1 = cr - model.mean[0], cb - model.mean[1]
+        inv = np.linalg.inv(model.cov)
+        m2 = inv[0, 0] * d0 ** 2 + 2 * inv[0, 1] * d0 * d1 + inv[1, 1] * d1 ** 2
+        table = model._table = (m2 < model.threshold).astype(np.uint8).ravel()
+    return table
+
+
 def marker_mask(image: np.ndarray, model: ChromaModel) -> np.ndarray:
     """Pixels (bool, H x W) whose chroma is within the model's threshold."""
     ycc = cv2.cvtColor(image, cv2.COLOR_BGR2YCrCb)
-    d = ycc[..., 1:].astype(np.float32) - model.mean.astype(np.float32)
-    inv = np.linalg.inv(model.cov).astype(np.float32)
-    m2 = inv[0, 0] * d[..., 0] ** 2 + 2 * inv[0, 1] * d[..., 0] * d[..., 1] + inv[1, 1] * d[..., 1] ** 2
-    return (m2 < model.threshold) & (ycc[..., 0] >= model.min_luma)
+    index = (ycc[..., 1].astype(np.uint16) << 8) | ycc[..., 2]
+    return chroma_table(model)[index].astype(bool) & (ycc[..., 0] >= model.min_luma)
 
 
 def detect_markers(image: np.ndarray, model: ChromaModel) -> np.ndarray:
@@ -83,3 +96,24 @@ def detect_markers(image: np.ndarray, model: ChromaModel) -> np.ndarray:
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = (area >= model.min_area) & (area <= model.max_area)
     return centroids[1:][keep].astype(np.float64)
+
+
+def frame_markers(image: np.ndarray, model: ChromaModel, scale: int = 1) -> np.ndarray:
+    """The detections (Q, 2) float32 of an image reduced ``scale`` times from the camera's
+    calibrated size, in the calibrated pixels (pixel centres map as ``(x + 0.5) s - 0.5``)."""
+    found = detect_markers(image, model)
+    return ((found + 0.5) * scale - 0.5).astype(np.float32) if scale != 1 else found.astype(np.float32)
+
+
+RECORDING_MODEL = "markers.json"
+
+
+def model_for_run(path: str, recording: str | None, who: str) -> ChromaModel:
+    """The chroma model a worker detects with: the file ``path``, or without one the
+    recording's ``markers.json``; neither is a one-line :class:`InputError` naming ``who``."""
+    if path:
+        return ChromaModel.load(path)
+    if recording and (Path(recording) / RECORDING_MODEL).is_file():
+        return ChromaModel.load(Path(recording) / RECORDING_MODEL)
+    raise InputError(f"{who}: no marker colour model (the parameter, or the recording's {RECORDING_MODEL}; "
+                     "make one with `smartroom markers learn`)")

@@ -267,7 +267,9 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
     voxels per frame, see :mod:`app.simulation.occupancy`). ``progress(done, total,
     elapsed_s)`` is called after each frame. The folder appears complete or not at all
     (written as ``<out>.partial`` then renamed). ``markers``: coloured markers painted on
-    the people's joints (:mod:`app.simulation.markers`). ``calibration``: other cameras (see
+    the people's joints (:mod:`app.simulation.markers`), and ``markers.json``, their colour
+    model learnt as a user would (``smartroom markers learn``: a few clicks on the markers
+    of the first frame that shows some). ``calibration``: other cameras (see
     :class:`Simulator`).
     """
     from app.recording import RecordingWriter
@@ -293,6 +295,8 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
                 images, _labels, rec = sim.render_people(i, people)
                 writer.write(images)
                 writer.write_groundtruth(rec)
+                if markers and not writer.file("markers.json").exists():
+                    _learn_marker_colour(sim, images, rec, writer.file("markers.json"))
                 brec = sim.body_record(i, people)
                 bodies.write(json.dumps(brec, separators=(",", ":")) + "\n")
                 if occ is not None:
@@ -312,6 +316,26 @@ def render_recording(scene: str = DEFAULT_SCENE, out=None, seconds: float | None
         writer.abort()
         raise
     return writer.close()
+
+
+def _learn_marker_colour(sim, images: dict, rec: dict, path) -> None:
+    """``markers.json`` from the frame's visible markers in the camera that sees most of
+    them (five clicks on their true centres), once some camera sees three."""
+    from app.markers.detector import learn_chroma
+    from app.markers.synthetic import visible_markers
+
+    if not rec["people"]:
+        return
+    X = np.array([[p["joints"][j] for j in JOINTS] for p in rec["people"]], float)
+    best = None
+    for cam in sim.calibration.cameras:
+        seen = visible_markers(X, [p["height"] for p in rec["people"]], cam)
+        uv = cam.project(X.reshape(-1, 3)).reshape(len(X), len(JOINTS), 2)[seen]
+        uv = uv[(uv[:, 0] >= 2) & (uv[:, 1] >= 2) & (uv[:, 0] < cam.width - 2) & (uv[:, 1] < cam.height - 2)]
+        if len(uv) >= 3 and (best is None or len(uv) > len(best[1])):
+            best = (cam.name, uv)
+    if best is not None:
+        Path(path).write_text(learn_chroma(images[best[0]], best[1][:5]).to_json() + "\n")
 
 
 def _renderer_version() -> int:
