@@ -423,6 +423,7 @@ class Pose(Worker):
         only = None if self.share is None else (lambda t: owns(self.share, t))
         if self.marker_people is not None:
             from app.markers.people import pose_marker_frame
+            self.grid = self._grid(vox)   # the snapshot's stamp: the stream it belongs to
             markers = markers or {}
             if len(ids):
                 self.marker_frames[1] += 1
