@@ -1,6 +1,8 @@
 """Marker-based capture (thesis §6.4, §6.6.1): the symmetric epipolar distance against
 hand-computed cases, the synthetic detector, and the pose error of the marker APF from
 synthetic detections of a simulated clip."""
+import sys
+
 import numpy as np
 import pytest
 
@@ -269,3 +271,87 @@ def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector
                   "--out", tmp_path_factory.mktemp("run") / "nowhere", timeout=200)
     assert r.returncode != 0
     assert [ln for ln in r.stderr.splitlines() if "mode markers but the layout detects no markers" in ln], r.stderr
+
+
+def test_the_markers_the_detections_place_in_the_room_are_the_visible_joints():
+    """walk1's rig, a standing person, every visible marker detected with 1 px of noise: the
+    triangulated markers (what the viewer draws) include each joint three or more cameras
+    see, within 3 cm, and few other points (pairs of neighbouring markers that happen to
+    agree within the 6 px tolerance; with 20 false detections an image, chance triples of
+    them agree too: the viewer shows what the detector gives)."""
+    from app.markers.likelihood import triangulated_markers
+    from app.simulation.simulator import Simulator
+    cams = Simulator("walk1", fps=25, seconds=0.2, width=640, height=480).calibration.cameras
+    X = _standing(3.0, 2.0)
+    dets, labels = synthetic_detections(X[None], [1.75], cams, DetectorModel(1.0, 0, 1.0), np.random.default_rng(2))
+    points = triangulated_markers(cams, dets)
+    views = np.sum([visible_markers(X[None], [1.75], c)[0] for c in cams], axis=0)
+    d = np.linalg.norm(points[:, None] - X[None], axis=2)
+    assert (d.min(axis=0) < 0.03)[views >= 3].all()
+    assert np.mean(d.min(axis=1) < 0.03) >= 0.8, np.round(d.min(axis=1), 3)
+
+
+def test_the_viewer_scene_draws_the_triangulated_markers():
+    from tests.test_viewer import _attribute, _frame_group
+    from app.viewer.scene import MARKER_COLOUR, Scene
+
+    pts = np.random.default_rng(0).uniform(0, 2, (9, 3))
+    info, kids, obj = _frame_group(Scene().frame(3, markers=pts))
+    assert info["parts"] == ["markers"] and kids["markers"]["userData"] == {"markers": 9}
+    np.testing.assert_allclose(_attribute(obj, kids["markers"], "position"), pts, atol=1e-6)
+    material = next(m for m in obj["materials"] if m["uuid"] == kids["markers"]["material"])
+    assert np.allclose([(material["color"] >> s & 255) / 255 for s in (16, 8, 0)], MARKER_COLOUR, atol=0.01)
+    info, kids, _ = _frame_group(Scene().frame(4, markers=np.zeros((0, 3))))
+    assert info["parts"] == ["markers"] and "markers" not in kids        # none placed: nothing drawn
+
+
+@pytest.mark.integration
+def test_the_live_page_shows_the_markers_beside_the_skeleton(tmp_path):
+    """The markers layout with ``viewer.markers=true``, paced, on walk1 with markers (3 s),
+    read in headless Chromium: a frame on show carries the triangulated markers with its
+    voxels, track and skeleton (where they are: the test above)."""
+    import re
+    import subprocess
+    import time
+
+    from app.bus import free_port
+    from tests.browser import Page, chromium, scene_state
+    from tests.conftest import ROOT, smartroom
+
+    binary = chromium()
+    if binary is None:
+        pytest.skip("needs headless Chromium (Debian package: chromium)")
+    rec = tmp_path / "walk1"
+    r = smartroom("simulate", "--scene", "walk1", "--seconds", 3, "--markers", "--out", rec, "--quiet", timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", "deploy/layouts/markers.yaml",
+                             "--recording", str(rec), "--out", str(tmp_path / "out"), "--set", f"viewer.port={port}",
+                             "--set", "viewer.markers=true"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    page = Page(binary, tmp_path / "profile")
+    seen = None
+    try:
+        url = None
+        for line in proc.stderr:
+            m = re.search(r"viewer: open (http://\S+)", line)
+            if m:
+                url = m.group(1)
+                break
+        assert url == f"http://127.0.0.1:{port}/static/"
+        page.goto(url)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and seen is None:
+            state = page.evaluate(scene_state(False), timeout=30)
+            if state and state.get("frame") and {"poses", "markers"} <= set(state["frame"]["parts"]) \
+                    and "markers" in state["children"] and any(k.startswith("skeleton ") for k in state["children"]):
+                seen = state
+            time.sleep(0.3)
+        proc.communicate(timeout=300)
+    finally:
+        page.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0
+    assert seen is not None, "no frame with markers and a skeleton was shown"
+    assert set(seen["frame"]["parts"]) == {"voxels", "tracks", "poses", "markers"}

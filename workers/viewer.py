@@ -6,7 +6,11 @@ ellipsoid, id label and trail per track, one skeleton per pose (bones and joints
 limb the model lost grey and thinner), and the pipeline's real-time factor at the top of
 the view. With the keypoint cue in the layout (``deploy/layouts/keypoints.yaml``) it also
 draws each track's keypoints triangulated from the cameras (yellow points over the
-skeletons: where the detector put the joints, beside where the filter put them). What is on show is one frame: a frame's voxels, tracks and poses are put
+skeletons: where the detector put the joints, beside where the filter put them); with
+``markers: true`` in marker mode (``deploy/layouts/markers.yaml``), the markers the
+cameras' detections place in the room (magenta points: triangulated from every pair of
+views and confirmed by a third, :func:`app.markers.likelihood.triangulated_markers`).
+What is on show is one frame: a frame's voxels, tracks and poses are put
 together (:class:`app.viewer.frames.FrameAssembly`) and drawn in one step once all of
 them are in (a stage that is away is not waited for), so the skeletons never lag the
 voxels they were fitted to. It is a sink that never slows the pipeline: its inboxes keep
@@ -27,8 +31,10 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from app.errors import InputError
-from app.messages import Keypoints, Poses, Stats, Tracks, Voxels
+from app.messages import Keypoints, Markers, Poses, Stats, Tracks, Voxels
 from app.monitor import REAL_TIME, PipelineView
 from app.pose_shares import SharedKeypoints, SharedPoses
 from app.viewer.frames import KINDS as PARTS, FrameAssembly
@@ -38,6 +44,7 @@ from workers import producers_of
 from workers.base import Worker
 
 KINDS = ((Voxels, "voxels"), (Tracks, "tracks"), (Poses, "poses"))
+KEEP_MARKER_FRAMES = 32   # frames whose markers wait for their voxels, tracks and poses
 STATUS_PERIOD_S = 1.0
 OK_COLOUR = (0.55, 1.0, 0.55)
 BEHIND_COLOUR = (1.0, 0.6, 0.25)
@@ -46,7 +53,7 @@ BEHIND_COLOUR = (1.0, 0.6, 0.25)
 class Viewer(Worker):
     KIND = "viewer"
     CONSUMES = ("voxels", "tracks", "poses", "keypoints", "stats")
-    ACCEPTS = (Voxels, Tracks, Poses, Keypoints)
+    ACCEPTS = (Voxels, Tracks, Poses, Keypoints, Markers)
     DISPLAY = True
     INBOX_DEPTH = 4      # a few frames of each kind: a frame waits for its slowest part
     #: a display has no results to duplicate: what comes after a restart is drawn as it comes
@@ -58,6 +65,7 @@ class Viewer(Worker):
         "max_points": 30000,          # voxels drawn at most per frame (surface first, then thinned)
         "trail": 25,                  # past positions drawn behind each track
         "ellipsoid": [0.3, 0.3, 0.9],  # semi-axes (m) of a person around the track's centroid
+        "markers": False,             # draw the markers the cameras detect (marker mode), triangulated
         "frustum_depth": 0.4,         # length (m) of the drawn camera frustums
         "wait_s": 2.0,                # a kind (voxels, tracks, poses) silent this long is not waited for
         "linger": False,              # smartroom run --linger: the page goes on to the run's replay at the end
@@ -84,6 +92,8 @@ class Viewer(Worker):
         self.shares = SharedPoses(producers_of(self.layout, "poses"), max_pending=8)
         self.keypoint_shares = SharedKeypoints(producers_of(self.layout, "keypoints"), max_pending=8)
         self.calibration = calib   # the keypoints are triangulated with it
+        self.marker_views: dict[tuple[int, int], dict] = {}   # (epoch, frame) -> camera -> (Q, 2) markers
+        self.marker_fundamentals = None
         self.due = 0.0
         self.shown_frame = -1
         self.failed = False
@@ -117,6 +127,11 @@ class Viewer(Worker):
         if isinstance(port, int) and 0 < port < 65536:
             self._earlier_port = port
 
+    @classmethod
+    def consumes(cls, spec) -> set[str]:
+        """The results; the markers too with ``markers: true``."""
+        return super().consumes(spec) | ({"markers"} if spec.params.get("markers") else set())
+
     def _calibration(self):
         calib = self.run_calibration()
         if calib is None:
@@ -132,6 +147,13 @@ class Viewer(Worker):
         elif isinstance(msg, Keypoints):
             for joined in self.keypoint_shares.add(msg):
                 self.assembly.add("keypoints", joined, now)
+        elif isinstance(msg, Markers):
+            if self.calibration is not None and msg.camera in self.calibration.names:
+                views = self.marker_views.setdefault((msg.epoch, msg.frame), {})
+                views[msg.camera] = msg.points
+                for old in sorted(self.marker_views)[:-KEEP_MARKER_FRAMES]:
+                    del self.marker_views[old]
+            return   # drawn with their frame's voxels, tracks and poses
         else:
             self.assembly.add("voxels" if isinstance(msg, Voxels) else "tracks", msg, now)
         self._draw()
@@ -182,12 +204,25 @@ class Viewer(Worker):
                                               vox.colours, vox.voxel_size, vox.surface),
             tracks=None if tracks is None else (tracks.ids, tracks.positions),
             poses=None if poses is None else (poses.tracks, poses.joints, poses.active),
-            keypoints=self._triangulated(parts.get("keypoints")))
+            keypoints=self._triangulated(parts.get("keypoints")), markers=self._markers(epoch, frame))
         self._send(cmds)
         if frame != self.shown_frame:
             self.shown_frame = frame
             first = min(parts.values(), key=lambda m: m.stamp or float("inf"))
             self.ledger.emitted(frame, first.stamp)
+
+    def _markers(self, epoch: int, frame: int):
+        """The frame's markers (K, 3) triangulated from the cameras that sent theirs; None
+        unless asked (``markers``) or without calibration."""
+        if not self.params.get("markers") or self.calibration is None:
+            return None
+        from app.markers.likelihood import triangulated_markers
+        views = self.marker_views.get((epoch, frame), {})
+        cams = self.calibration.cameras
+        if self.marker_fundamentals is None:
+            from app.markers.epipolar import fundamentals
+            self.marker_fundamentals = fundamentals(cams)
+        return triangulated_markers(cams, [views.get(c.name, np.zeros((0, 2))) for c in cams], self.marker_fundamentals)
 
     def _triangulated(self, msg: Keypoints | None):
         """``[(track, points (K, 3))]``: each track's keypoints triangulated from two or

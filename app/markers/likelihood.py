@@ -37,7 +37,7 @@ from numba import njit
 from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
 from app.pose.model import joints_subset, segments_needed
 
-__all__ = ["MarkerScorer", "COSTS", "marker_costs"]
+__all__ = ["MarkerScorer", "COSTS", "marker_costs", "supported_detections", "triangulated_markers"]
 
 COSTS = ("thesis", "reprojection", "both_ways")
 
@@ -191,6 +191,18 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
     def stack(parts):
         return np.concatenate(parts) if parts else np.zeros((0, 3))
     return flags, stack(points), stack(pairs)
+
+
+def triangulated_markers(cameras, detections, F=None, tol: float = 6.0, radius: float = 0.03) -> np.ndarray:
+    """The markers (K, 3) a frame's detections (per camera (Q_n, 2) observed pixels) place
+    in the room: the points the supported pairs of views triangulate
+    (:func:`supported_detections`), those within ``radius`` of each other merged
+    (:func:`app.markers.proposals.agreed_points`); what the viewer draws."""
+    from app.markers.proposals import agreed_points
+
+    ideal = [ideal_pixels(c, np.asarray(d, float).reshape(-1, 2)) for c, d in zip(cameras, detections)]
+    _, points, _ = supported_detections(ideal, list(cameras), fundamentals(cameras) if F is None else F, tol)
+    return agreed_points(points, radius)
 
 
 class MarkerScorer:

@@ -35,6 +35,7 @@ GRID_COLOUR = (0.30, 0.32, 0.36)
 ROOM_COLOUR = (0.62, 0.66, 0.72)
 FRUSTUM_COLOUR = (1.00, 1.00, 1.00)
 INACTIVE_COLOUR = (0.45, 0.45, 0.45)
+MARKER_COLOUR = (1.0, 0.3, 0.9)    # marker mode's triangulated markers (magenta), over the skeletons
 KEYPOINT_COLOUR = (1.0, 0.85, 0.1)  # the keypoint cue's triangulated joints (yellow), over the skeletons
 LABEL_HEIGHT = 0.045           # labels keep their size on screen: ~3 % of the view's height
 
@@ -122,13 +123,15 @@ class Scene:
         return self.room()
 
     # -- every frame ------------------------------------------------------------------
-    def frame(self, frame: int, voxels=None, tracks=None, poses=None, epoch: int = 0, keypoints=None) -> list[dict]:
+    def frame(self, frame: int, voxels=None, tracks=None, poses=None, epoch: int = 0, keypoints=None,
+              markers=None) -> list[dict]:
         """One frame on show: its voxels, tracks and skeletons as one group object at
         :data:`LIVE`, which replaces the frame shown before in one step (the page never
         shows parts of two frames). ``voxels``: ``(centres, colours, voxel_size, surface)``;
         ``tracks``: ``(ids, positions)``; ``poses``: ``(tracks, joints, active)``;
-        ``keypoints``: ``[(track, points (K, 3))]``, the keypoint cue's joints triangulated; None:
-        the frame has no such part (nothing of it is drawn). The group's ``userData`` says
+        ``keypoints``: ``[(track, points (K, 3))]``, the keypoint cue's joints triangulated;
+        ``markers``: (K, 3), marker mode's markers triangulated from the cameras; None: the
+        frame has no such part (nothing of it is drawn). The group's ``userData`` says
         which frame it is and which parts it has."""
         children, parts = [], []
         if voxels is not None:
@@ -154,6 +157,12 @@ class Scene:
                                                   size=0.05, on_top=True, render_order=6,
                                                   user_data={"track": int(tid)}), f"keypoints {int(tid)}")
                          for tid, pts in keypoints if len(pts)]
+        if markers is not None:
+            parts.append("markers")
+            pts = np.asarray(markers, float).reshape(-1, 3)
+            if len(pts):
+                children.append(three.named(three.points(pts, colour=MARKER_COLOUR, size=0.04, on_top=True,
+                                                         render_order=6, user_data={"markers": len(pts)}), "markers"))
         info = {"frame": int(frame), "epoch": int(epoch), "parts": parts}
         return [three.set_object(LIVE, three.group(children, "frame", user_data=info))]
 
