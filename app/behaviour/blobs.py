@@ -1,0 +1,219 @@
+"""Coloured Gaussian blobs on the bones and their fit to the voxels (Caillette, Galata and
+Howard, CVIU 2007, §6.2-6.4).
+
+A blob is a 6-d Gaussian (position, colour) attached to one segment of the body model
+(:data:`app.pose.model.SEGMENTS`): its spatial mean and covariance are given in the
+segment's frame (the paper's offset along the bone and three eigenvalues: here the full
+local mean, the offset across the bone included, and the variances along the segment's
+three axes), its colour mean and covariance are learnt from the voxels (:func:`learn_blobs`,
+§6.2, one blob a segment: the split and merge of multi-coloured clothing is not built).
+Any state gives the blobs in the room by forward kinematics (:meth:`BlobModel.world`).
+
+The voxels are summarised by fitting the blobs to them (§6.3, :func:`fit_blobs`): a
+k-means with the Mahalanobis distance on position and colour, each voxel to its nearest
+blob, each blob's mean and covariance re-estimated from its voxels; the start is the blobs
+of one or more candidate states, and the fit whose blobs explain the voxels best (their
+log-likelihood) is kept. A particle is weighed by the relative entropy of its blobs to
+the fitted ones (§6.4, Eq. 9 with the blob correspondence kept:
+:func:`blob_divergences`, a numba kernel, linear in the blobs), weight ``1 / D``.
+
+Colours are in units of :data:`COLOUR_UNIT` (0..1 for 8-bit RGB), positions in metres.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, SEGMENT, BodyModel, fk_segments
+
+__all__ = ["BlobModel", "FittedBlobs", "learn_blobs", "fit_blobs", "blob_divergences", "COLOUR_UNIT", "BONES"]
+
+COLOUR_UNIT = 255.0
+#: Each segment's bone (local z from z0 to z1, fractions of the stature) for assigning
+#: voxels when the blobs are learnt: the extents of the body model's flesh
+#: (:mod:`app.pose.flesh`).
+BONES = {"pelvis": (-0.070, 0.045), "torso": (0.045, 0.275), "head": (0.030, 0.155),
+         "l_upper_arm": (-0.030, -0.186), "l_forearm": (-0.010, -0.218),
+         "r_upper_arm": (-0.030, -0.186), "r_forearm": (-0.010, -0.218),
+         "l_thigh": (-0.045, -0.240), "l_shin": (-0.010, -0.246),
+         "r_thigh": (-0.045, -0.240), "r_shin": (-0.010, -0.246)}
+SEG_OF_BLOB = np.array([SEGMENT[s] for s in BONES], dtype=np.int64)
+MIN_VOXELS = 8          # a blob re-estimated from fewer keeps its previous shape
+VAR_FLOOR = np.array([1e-4, 1e-4, 1e-4, 4e-4, 4e-4, 4e-4])   # (1 cm)^2 and (0.02 colour)^2
+
+
+@dataclass
+class BlobModel:
+    """One person's blobs: ``local_mean`` (B, 3) and ``local_var`` (B, 3) in their
+    segment's frame (metres), ``colour_mean`` (B, 3), ``colour_cov`` (B, 3, 3), ``weight``
+    (B,) the share of the person's voxels each explains; ``segment`` (B,)."""
+
+    height: float
+    segment: np.ndarray
+    local_mean: np.ndarray
+    local_var: np.ndarray
+    colour_mean: np.ndarray
+    colour_cov: np.ndarray
+    weight: np.ndarray
+
+    def world(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """The blobs of ``state`` in the room: means (B, 6) and covariances (B, 6, 6)."""
+        R, O = BodyModel(self.height).forward(state)
+        B = len(self.segment)
+        means, covs = np.zeros((B, 6)), np.zeros((B, 6, 6))
+        for b, s in enumerate(self.segment):
+            means[b, :3] = O[s] + R[s] @ self.local_mean[b]
+            means[b, 3:] = self.colour_mean[b]
+            covs[b, :3, :3] = R[s] @ np.diag(self.local_var[b]) @ R[s].T
+            covs[b, 3:, 3:] = self.colour_cov[b]
+        return means, covs
+
+
+@dataclass
+class FittedBlobs:
+    """The blobs fitted to one frame's voxels: ``weight`` (B,), ``mean`` (B, 6), ``cov``
+    (B, 6, 6) and the voxels' log-likelihood under them."""
+
+    weight: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    loglik: float
+
+
+def _points(centres, colours) -> np.ndarray:
+    return np.concatenate([np.asarray(centres, float), np.asarray(colours, float) / COLOUR_UNIT], axis=1)
+
+
+def learn_blobs(height: float, state, centres, colours) -> BlobModel:
+    """The blobs of a person whose pose is ``state``, from their voxels (centres (N, 3),
+    colours (N, 3) 8-bit RGB): each voxel to the bone it is nearest (relative to the
+    flesh's thickness there), each blob the mean and variances of its voxels in its
+    segment's frame and the mean and covariance of their colours (§6.2)."""
+    R, O = BodyModel(height).forward(state)
+    X = np.asarray(centres, float)
+    C = np.asarray(colours, float) / COLOUR_UNIT
+    local = np.einsum("sji,nsj->nsi", R[SEG_OF_BLOB], X[:, None, :] - O[SEG_OF_BLOB][None])   # (N, B, 3)
+    z0 = np.array([min(v) for v in BONES.values()]) * height
+    z1 = np.array([max(v) for v in BONES.values()]) * height
+    along = np.clip(local[..., 2], z0, z1)
+    dist = np.sqrt(local[..., 0] ** 2 + local[..., 1] ** 2 + (local[..., 2] - along) ** 2)
+    owner = np.argmin(dist, axis=1)
+    B = len(SEG_OF_BLOB)
+    lm, lv = np.zeros((B, 3)), np.zeros((B, 3))
+    cm, cc = np.zeros((B, 3)), np.zeros((B, 3, 3))
+    w = np.zeros(B)
+    for b in range(B):
+        mine = owner == b
+        n = int(mine.sum())
+        w[b] = n
+        if n >= MIN_VOXELS:
+            pts = local[mine, b]
+            lm[b], lv[b] = pts.mean(axis=0), pts.var(axis=0) + VAR_FLOOR[:3]
+            cm[b], cc[b] = C[mine].mean(axis=0), np.cov(C[mine].T) + np.diag(VAR_FLOOR[3:])
+        else:   # a part the voxels do not show: a thin blob along its bone, grey
+            lm[b] = (0.0, 0.0, 0.5 * (z0[b] + z1[b]))
+            lv[b] = (0.03 ** 2, 0.03 ** 2, ((z1[b] - z0[b]) / 3.5) ** 2)
+            cm[b], cc[b] = 0.5, np.eye(3) * 0.05
+            w[b] = max(n, 1)
+    return BlobModel(float(height), SEG_OF_BLOB.copy(), lm, lv, cm, cc, w / w.sum())
+
+
+def _loglik(P, mean, cov, weight) -> tuple[np.ndarray, float]:
+    """Per blob log N(p | blob) (N, B) and the voxels' log-likelihood under the mixture."""
+    B = len(mean)
+    L = np.empty((len(P), B))
+    for b in range(B):
+        ch = np.linalg.cholesky(cov[b])
+        z = np.linalg.solve(ch, (P - mean[b]).T)
+        L[:, b] = -0.5 * np.sum(z * z, axis=0) - np.sum(np.log(np.diag(ch))) - 3.0 * math.log(2 * math.pi)
+    mix = L + np.log(np.maximum(weight, 1e-12))
+    m = mix.max(axis=1, keepdims=True)
+    return L, float(np.sum(m[:, 0] + np.log(np.exp(mix - m).sum(axis=1))))
+
+
+def fit_blobs(model: BlobModel, starts, centres, colours, iterations: int = 6) -> FittedBlobs:
+    """The blobs fitted to the voxels by the Mahalanobis k-means of §6.3 from the blobs of
+    each state of ``starts``; the fit of the highest log-likelihood of the voxels."""
+    P = _points(centres, colours)
+    best = None
+    for state in np.atleast_2d(starts):
+        mean, cov = model.world(state)
+        weight = model.weight.copy()
+        for _ in range(iterations):
+            inv = np.linalg.inv(cov)
+            D = P[:, None, :] - mean[None]                                   # (N, B, 6)
+            maha = np.einsum("nbi,bij,nbj->nb", D, inv, D)
+            owner = np.argmin(maha, axis=1)
+            for b in range(len(mean)):
+                mine = owner == b
+                n = int(mine.sum())
+                weight[b] = max(n, 1)
+                if n >= MIN_VOXELS:
+                    mean[b] = P[mine].mean(axis=0)
+                    cov[b] = np.cov(P[mine].T) + np.diag(VAR_FLOOR)
+            weight = weight / weight.sum()
+        _, ll = _loglik(P, mean, cov, weight)
+        if best is None or ll > best.loglik:
+            best = FittedBlobs(weight, mean.copy(), cov.copy(), ll)
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _divergences(states, height, seg_parent, seg_offset, dof_segment, dof_axis, blob_seg, local_mean, local_var,
+                 colour_mean, colour_cov, alpha, g_mean, g_inv, g_logdet, beta, out):
+    """Eq. 9 for each state: sum_b alpha_b (D_KL(f_b || g_b) + ln(alpha_b / beta_b))."""
+    P = states.shape[0]
+    B = blob_seg.shape[0]
+    R = np.empty((seg_parent.shape[0], 3, 3))
+    O = np.empty((seg_parent.shape[0], 3))
+    logdet_f = np.empty(B)
+    trace_c = np.empty(B)
+    for b in range(B):
+        logdet_f[b] = math.log(local_var[b, 0] * local_var[b, 1] * local_var[b, 2]) + \
+            math.log(np.linalg.det(colour_cov[b]))
+        t = 0.0
+        for i in range(3):
+            for j in range(3):
+                t += g_inv[b, 3 + i, 3 + j] * colour_cov[b, j, i]
+        trace_c[b] = t
+    mu = np.empty(6)
+    for p in range(P):
+        fk_segments(states[p], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O)
+        total = 0.0
+        for b in range(B):
+            s = blob_seg[b]
+            for i in range(3):
+                mu[i] = O[s, i] + R[s, i, 0] * local_mean[b, 0] + R[s, i, 1] * local_mean[b, 1] + \
+                    R[s, i, 2] * local_mean[b, 2]
+                mu[3 + i] = colour_mean[b, i]
+            # tr(G^-1 S_f): the spatial block is sum_k var_k r_k^T G^-1 r_k (r_k the segment's axes)
+            tr = trace_c[b]
+            for k in range(3):
+                q = 0.0
+                for i in range(3):
+                    for j in range(3):
+                        q += R[s, i, k] * g_inv[b, i, j] * R[s, j, k]
+                tr += local_var[b, k] * q
+            maha = 0.0
+            for i in range(6):
+                di = g_mean[b, i] - mu[i]
+                for j in range(6):
+                    maha += di * g_inv[b, i, j] * (g_mean[b, j] - mu[j])
+            kl = 0.5 * (g_logdet[b] - logdet_f[b] - 6.0 + tr + maha)
+            total += alpha[b] * (kl + math.log(alpha[b] / beta[b]))
+        out[p] = total
+
+
+def blob_divergences(model: BlobModel, fitted: FittedBlobs, states: np.ndarray) -> np.ndarray:
+    """D_KL(F || G) (Eq. 9) of each state's blobs F against the fitted blobs G, (P,)."""
+    states = np.ascontiguousarray(np.atleast_2d(states), dtype=np.float64)
+    out = np.empty(len(states))
+    inv = np.linalg.inv(fitted.cov)
+    logdet = np.linalg.slogdet(fitted.cov)[1]
+    _divergences(states, model.height, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, model.segment,
+                 model.local_mean, model.local_var, model.colour_mean, model.colour_cov,
+                 np.maximum(model.weight, 1e-6), fitted.mean, inv, logdet, np.maximum(fitted.weight, 1e-6), out)
+    return out
