@@ -172,3 +172,50 @@ SCENE_STATE = """(() => {
     }
     return out;
 })()"""
+
+
+def watch_live_run(layout: str, recording, out, tmp, shown, extra=(), timeout: float = 120.0):
+    """Run ``layout`` paced over ``recording`` with its viewer on a free port, read the page
+    in headless Chromium until a frame on show satisfies ``shown(state)`` (the
+    :func:`scene_state` data, without vertices) or ``timeout``; ``(run's exit code, that
+    state or None)``. ``extra``: more ``smartroom run`` arguments. Skips without Chromium."""
+    import re
+    import subprocess
+    import sys
+    import time
+
+    import pytest
+
+    from app.bus import free_port
+    from tests.conftest import ROOT
+
+    binary = chromium()
+    if binary is None:
+        pytest.skip("needs headless Chromium (Debian package: chromium)")
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", layout, "--recording", str(recording),
+                             "--out", str(out), "--set", f"viewer.port={port}", *map(str, extra)],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    page = Page(binary, tmp / "profile")
+    seen = None
+    try:
+        url = None
+        for line in proc.stderr:
+            m = re.search(r"viewer: open (http://\S+)", line)
+            if m:
+                url = m.group(1)
+                break
+        assert url == f"http://127.0.0.1:{port}/static/"
+        page.goto(url)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and seen is None:
+            state = page.evaluate(scene_state(False), timeout=30)
+            if state and state.get("frame") and shown(state):
+                seen = state
+            time.sleep(0.3)
+        proc.communicate(timeout=300)
+    finally:
+        page.close()
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, seen

@@ -239,48 +239,15 @@ def test_the_live_page_shows_the_keypoints_beside_the_skeleton(tmp_path):
     in headless Chromium: a frame on show carries the track's triangulated keypoints
     with its voxels, track and skeleton."""
     _need_detector()
-    import re
-    import subprocess
-    import time
+    from tests.browser import watch_live_run
+    from tests.conftest import smartroom
 
-    from app.bus import free_port
-    from tests.browser import Page, chromium, scene_state
-    from tests.conftest import ROOT, smartroom
-
-    binary = chromium()
-    if binary is None:
-        pytest.skip("needs headless Chromium (Debian package: chromium)")
     rec = tmp_path / "random5"
     r = smartroom("simulate", "--random", 5, "--seconds", 4, "--out", rec, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", "deploy/layouts/keypoints.yaml",
-                             "--recording", str(rec), "--out", str(tmp_path / "out"), "--set", f"viewer.port={port}"],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    page = Page(binary, tmp_path / "profile")
-    seen = None
-    try:
-        url = None
-        for line in proc.stderr:
-            m = re.search(r"viewer: open (http://\S+)", line)
-            if m:
-                url = m.group(1)
-                break
-        assert url == f"http://127.0.0.1:{port}/static/"
-        page.goto(url)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and seen is None:
-            state = page.evaluate(scene_state(False), timeout=30)
-            if state and state.get("frame") and "keypoints" in state["frame"]["parts"] \
-                    and any(k.startswith("keypoints ") for k in state["children"]):
-                seen = state
-            time.sleep(0.3)
-        proc.communicate(timeout=300)
-    finally:
-        page.close()
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0
+    rc, seen = watch_live_run("deploy/layouts/keypoints.yaml", rec, tmp_path / "out", tmp_path, lambda state: (
+        "keypoints" in state["frame"]["parts"] and any(k.startswith("keypoints ") for k in state["children"])))
+    assert rc == 0
     assert seen is not None, "no frame with keypoints was shown"
     assert set(seen["frame"]["parts"]) == {"voxels", "tracks", "poses", "keypoints"}
     tracks = {k.split()[1] for k in seen["children"] if k.startswith("track ")}

@@ -1,8 +1,6 @@
 """Marker-based capture (thesis §6.4, §6.6.1): the symmetric epipolar distance against
 hand-computed cases, the synthetic detector, and the pose error of the marker APF from
 synthetic detections of a simulated clip."""
-import sys
-
 import numpy as np
 import pytest
 
@@ -310,48 +308,15 @@ def test_the_live_page_shows_the_markers_beside_the_skeleton(tmp_path):
     """The markers layout with ``viewer.markers=true``, paced, on walk1 with markers (3 s),
     read in headless Chromium: a frame on show carries the triangulated markers with its
     voxels, track and skeleton (where they are: the test above)."""
-    import re
-    import subprocess
-    import time
+    from tests.browser import watch_live_run
+    from tests.conftest import smartroom
 
-    from app.bus import free_port
-    from tests.browser import Page, chromium, scene_state
-    from tests.conftest import ROOT, smartroom
-
-    binary = chromium()
-    if binary is None:
-        pytest.skip("needs headless Chromium (Debian package: chromium)")
     rec = tmp_path / "walk1"
     r = smartroom("simulate", "--scene", "walk1", "--seconds", 3, "--markers", "--out", rec, "--quiet", timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", "deploy/layouts/markers.yaml",
-                             "--recording", str(rec), "--out", str(tmp_path / "out"), "--set", f"viewer.port={port}",
-                             "--set", "viewer.markers=true"],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    page = Page(binary, tmp_path / "profile")
-    seen = None
-    try:
-        url = None
-        for line in proc.stderr:
-            m = re.search(r"viewer: open (http://\S+)", line)
-            if m:
-                url = m.group(1)
-                break
-        assert url == f"http://127.0.0.1:{port}/static/"
-        page.goto(url)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and seen is None:
-            state = page.evaluate(scene_state(False), timeout=30)
-            if state and state.get("frame") and {"poses", "markers"} <= set(state["frame"]["parts"]) \
-                    and "markers" in state["children"] and any(k.startswith("skeleton ") for k in state["children"]):
-                seen = state
-            time.sleep(0.3)
-        proc.communicate(timeout=300)
-    finally:
-        page.close()
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0
+    rc, seen = watch_live_run("deploy/layouts/markers.yaml", rec, tmp_path / "out", tmp_path, lambda state: (
+        {"poses", "markers"} <= set(state["frame"]["parts"]) and "markers" in state["children"]
+        and any(k.startswith("skeleton ") for k in state["children"])), extra=("--set", "viewer.markers=true"))
+    assert rc == 0
     assert seen is not None, "no frame with markers and a skeleton was shown"
     assert set(seen["frame"]["parts"]) == {"voxels", "tracks", "poses", "markers"}
