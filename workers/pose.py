@@ -97,6 +97,7 @@ class Pose(Worker):
         "marker_proposals": 0.2,    # markers: share of the first layer from the triangulated markers
         "marker_acquire": 4,        # markers: filter runs on a track's first frame
         "marker_settle": 10,        # markers: frames a new track is followed facing either way
+        "marker_floor": 0.1,        # markers: m, the lower ankle's floor prior; 0 = none (the thesis)
         "method": "shbm",           # shbm, apf, ddm, shbm+ddm
         "density": 2.0,             # delta of Eq. 6.26 (1 = the data's voxel size)
         "likelihood": "partitioned",  # or global
@@ -167,7 +168,7 @@ class Pose(Worker):
               "snapshot_frames": (1, 1000), "threads": (1, 64),
               "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_rho": (1.0, 500.0),
               "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
-              "marker_settle": (0, 1000)}
+              "marker_settle": (0, 1000), "marker_floor": (0.0, 10.0)}
 
     @classmethod
     def consumes(cls, spec) -> set[str]:
@@ -175,7 +176,8 @@ class Pose(Worker):
         marker mode."""
         on = float(spec.params.get("keypoints", 0) or 0) > 0
         markers = spec.params.get("mode") == "markers"
-        return set(cls.CONSUMES) | ({"keypoints"} if on and not markers else set()) | ({"markers"} if markers else set())
+        extra = {"markers"} if markers else ({"keypoints"} if on else set())
+        return set(cls.CONSUMES) | extra
 
     def setup(self) -> None:
         from app.pose.estimator import PoseSettings
@@ -236,7 +238,7 @@ class Pose(Worker):
         return MarkerSettings(particles=int(p["marker_particles"]), layers=int(p["marker_layers"]),
                               rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
                               proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
-                              settle=int(p["marker_settle"]), seed=int(p["seed"]))
+                              settle=int(p["marker_settle"]), floor=float(p["marker_floor"]), seed=int(p["seed"]))
 
     def _setup_markers(self) -> None:
         """Marker mode: the run's cameras, a detector in the layout, the kernels compiled."""

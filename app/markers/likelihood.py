@@ -40,6 +40,8 @@ from app.pose.model import joints_subset, segments_needed
 __all__ = ["MarkerScorer", "COSTS", "marker_costs", "supported_detections", "triangulated_markers"]
 
 COSTS = ("thesis", "reprojection", "both_ways")
+_ANKLES = np.array([11, 14], dtype=np.int64)   # l_ankle, r_ankle in JOINTS order
+ANKLE_HEIGHT = 0.039                          # of the stature: the ankle joint standing (app.pose.model)
 
 
 @njit(cache=True, nogil=True)
@@ -231,6 +233,8 @@ class MarkerScorer:
         self.start = np.zeros(len(self.cameras) + 1, np.int64)
         self.supported = np.zeros(0, np.bool_)
         self.evaluations = 0
+        self.floor = 0.0                     # m: the lower ankle's prior (log_weights); 0 = none (the thesis)
+        self.ankles_need = segments_needed(_ANKLES)
 
     def set_detections(self, detections) -> None:
         """One frame's detections: per camera (Q_n, 2) observed pixels."""
@@ -255,6 +259,13 @@ class MarkerScorer:
         return out
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
-        """Eq. 6.10: ``log w = -C^2 / (2 sigma^2)``."""
+        """Eq. 6.10: ``log w = -C^2 / (2 sigma^2)``; with ``floor`` (m, ours) also
+        ``-(dz / floor)^2 / 2``, ``dz`` the lower ankle's height above its standing height
+        (markers the cameras do not see, legs behind furniture, leave the legs free)."""
         c = self.costs(states)
-        return -(c * c) / (2.0 * self.sigma * self.sigma)
+        out = -(c * c) / (2.0 * self.sigma * self.sigma)
+        if self.floor > 0:
+            ankles = joints_subset(states, self.height, _ANKLES, self.ankles_need)[:, :, 2]
+            dz = np.maximum(ankles.min(axis=1) - ANKLE_HEIGHT * self.height, 0.0)
+            out -= 0.5 * (dz / self.floor) ** 2
+        return out

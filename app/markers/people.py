@@ -57,13 +57,15 @@ class MarkerSettings:
     support_px: float = 6.0     # px: a detection is supported by agreeing detections of two more views
     acquire: int = 4            # filter runs on a track's first frame
     settle: int = 10            # frames a new track is followed facing either way (0: one frame's cost picks)
+    floor: float = 0.1          # m: the lower ankle's prior (app.markers.likelihood); 0 = none (the thesis)
     seed: int = 0
 
     def validate(self) -> None:
         if self.cost not in COSTS:
             raise ValueError(f"marker_cost {self.cost!r} must be one of {', '.join(COSTS)}")
-        if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0:
-            raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0")
+        if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0 \
+                or self.floor < 0:
+            raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0")
 
 
 def person_stature(centres: np.ndarray, voxel_size: float) -> float | None:
@@ -95,7 +97,7 @@ class MarkerPeople:
         s = self.s
         return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, rho=s.rho, cost=s.cost,
                              seed=s.seed * 1_000_003 + int(track), proposals=s.proposals, support_px=s.support_px,
-                             explain=s.explain)
+                             explain=s.explain, floor=s.floor)
 
     @staticmethod
     def _cost(tracker: MarkerTracker) -> float:

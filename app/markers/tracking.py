@@ -58,10 +58,11 @@ class MarkerTracker:
 
     def __init__(self, cameras, height: float, particles: int = 700, layers: int = 3, rho: float = 20.0,
                  sigma: float = 1.0, cost: str = "both_ways", alpha: float = 0.5, seed: int = 0,
-                 proposals: float = 0.2, support_px: float = 6.0, explain: float = 3.0):
+                 proposals: float = 0.2, support_px: float = 6.0, explain: float = 3.0, floor: float = 0.1):
         self.model = BodyModel(height)
         self.scorer = MarkerScorer(cameras, height, rho=rho, sigma=sigma, cost=cost, candidates=proposals > 0,
                                    support_px=support_px, explain=explain)
+        self.scorer.floor = float(floor)
         self.filter = APF(particles=particles, layers=layers, alpha=alpha, rng=np.random.default_rng(seed),
                           importance_fraction=proposals)
         self.state: np.ndarray | None = None
