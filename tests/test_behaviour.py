@@ -164,3 +164,39 @@ def test_the_blob_divergence_is_least_at_the_true_pose_and_matches_the_closed_fo
     mean, cov = model.world(others[7])
     assert d[8] == pytest.approx(matched_kl(np.maximum(model.weight, 1e-6), mean, cov,
                                             np.maximum(fit.weight, 1e-6), fit.mean, fit.cov), rel=1e-9)
+
+
+def test_the_behaviour_model_shipped_predicts_the_motion_of_people_it_never_saw():
+    """``app/behaviour/behaviour.json`` (``smartroom train behaviour``: random tuning scenes
+    0-15): it loads, and on random scene 24's people (4 s; not in its training or its
+    check) the VLMM's model entropy (Eq. 2) is well under that of a guess among its
+    clusters (log2 k bits a frame): it knows which elementary movement comes next."""
+    from app.behaviour.model import DEFAULT_PATH, BehaviourModel, training_states
+
+    model = BehaviourModel.load(DEFAULT_PATH)
+    assert model.clusters.k >= 5 and model.info["training_seeds"] == list(range(16))
+    states = training_states([24], seconds=4.0)
+    assert states and sum(len(s) for s in states) > 90
+    h = model.vlmm.entropy([model.labels(s) for s in states])
+    assert h < 0.35 * np.log2(model.clusters.k), (h, model.clusters.k)
+
+
+def test_the_filter_propagates_within_the_joint_limits_and_through_the_vlmm():
+    """200 particles predicted 20 frames from rest by the shipped model: every state within
+    the joint limits, every particle's VLMM state a context of the model ending with its
+    cluster, the particles spread over more than one cluster; after ``recover`` the
+    states are back at the root."""
+    from app.behaviour.filter import BehaviourFilter
+    from app.behaviour.model import DEFAULT_PATH, BehaviourModel
+    from app.pose.model import LIMITS_HI, LIMITS_LO, neutral_state
+
+    model = BehaviourModel.load(DEFAULT_PATH)
+    f = BehaviourFilter(model, particles=200, rng=np.random.default_rng(0))
+    f.reset(neutral_state(1.75, (1.0, 1.0, None)))
+    for _ in range(20):
+        f.predict()
+        assert np.all(f.states >= LIMITS_LO - 1e-9) and np.all(f.states <= LIMITS_HI + 1e-9)
+        assert all(q in model.vlmm.contexts and (not q or q[-1] == k) for q, k in zip(f.vlmm_state, f.cluster))
+    assert len(f.support()) > 1
+    f.recover()
+    assert set(f.vlmm_state) == {()}

@@ -12,14 +12,14 @@ with it) minimising the minimum-message-length criterion
 N the parameters of one component (d + d (d + 1) / 2, full covariances), whose M-step
 weight ``a_m = max(0, sum_i w_im - N/2) / sum_j max(0, sum_i w_ij - N/2)`` annihilates the
 components the data do not support (as in their published code: ``a_m`` from its own
-responsibilities, then every weight renormalised, component by component). It starts from ``k_max`` components on random data
-points (covariances ``sigma^2 I``, a tenth of the data's mean variance), runs CEM² to
-convergence, keeps the mixture of least L, removes the weakest component and starts
-again, down to ``k_min``. The one departure: a ridge (``reg`` times the data's mean
+responsibilities, then every weight renormalised, component by component). It starts
+from ``k_max`` components on random data points (covariances ``sigma^2 I``, a tenth of
+the data's mean variance), runs CEM² to convergence, keeps the mixture of least L,
+removes the weakest component and starts again, down to ``k_min``. The one departure: a ridge (``reg`` times the data's mean
 variance) on every covariance so that a cluster of a few collinear points stays
 invertible (the paper's own guard against singularities is the annihilation alone).
 
-No bus and no scikit-learn: plain numpy, a few seconds for ten thousand 42-d vectors.
+No bus and no scikit-learn: plain numpy, 15 s for the 14 600 16-d vectors of the shipped model.
 """
 from __future__ import annotations
 
@@ -62,7 +62,10 @@ class GaussianClusters:
         return np.argmax(self.log_densities(X) + np.log(self.weights), axis=1)
 
     def to_dict(self) -> dict:
-        return {"weights": self.weights.tolist(), "means": self.means.tolist(), "covs": self.covs.tolist(),
+        """Plain lists, 7 significant digits (a model file of a few hundred kB)."""
+        def short(a):
+            return np.vectorize(lambda v: float(f"{v:.7g}"), otypes=[float])(a).tolist()
+        return {"weights": short(self.weights), "means": short(self.means), "covs": short(self.covs),
                 "message_length": float(self.message_length)}
 
     @classmethod

@@ -1,4 +1,6 @@
 """``smartroom train classifier``: train the person / no-person decision tree (thesis §4.2.3).
+``smartroom train behaviour``: Caillette's behaviour model (clusters and VLMM,
+:mod:`app.behaviour`; :func:`main_behaviour` says how).
 
 Components of simulated recordings are labelled by ground truth, a tree is grown and
 pruned by cross-validation (scikit-learn, ``pip install 'smartroom[train]'``), scored
@@ -29,20 +31,26 @@ TRAIN_SCENES = ("meeting3",)
 HELD_OUT_SCENES = ()
 TRAIN_RANDOM = "0:20"    # random tuning seeds the tree is grown on
 CHECK_RANDOM = "20:24"   # random tuning seeds it is checked on
+BEHAVIOUR_RANDOM = "0:16"   # random tuning seeds whose people the behaviour model learns from
+BEHAVIOUR_CHECK = "16:20"   # ... and whose people its entropy is checked on
 TRAIN_CARVING = {"tolerance": 1, "min_views": 2, "miss_support": 0}   # the hulls the components are cut from
 
 
 def add_arguments(p) -> None:
-    p.add_argument("target", choices=("classifier",), help="what to train")
+    p.add_argument("target", choices=("classifier", "behaviour"), help="what to train")
     p.add_argument("--recordings", nargs="*", metavar="DIR",
                    help="training recordings with groundtruth.jsonl (default: simulated meeting3, seed 1)")
     p.add_argument("--held-out", nargs="*", metavar="DIR",
                    help="recordings to score the tree on besides --random-held-out (default: none)")
-    p.add_argument("--random", default=TRAIN_RANDOM, metavar="A:B",
-                   help=f"random scenes (tuning seeds, below 1000) added to the training data (default {TRAIN_RANDOM}; "
-                        "'' for none)")
-    p.add_argument("--random-held-out", default=CHECK_RANDOM, metavar="C:D",
-                   help=f"random scenes (tuning seeds) added to the held-out data (default {CHECK_RANDOM})")
+    p.add_argument("--random", default=None, metavar="A:B",
+                   help=f"random scenes (tuning seeds, below 1000) added to the training data (default {TRAIN_RANDOM}, "
+                        f"behaviour {BEHAVIOUR_RANDOM}; '' for none)")
+    p.add_argument("--random-held-out", default=None, metavar="C:D",
+                   help=f"random scenes (tuning seeds) added to the held-out data (default {CHECK_RANDOM}, behaviour "
+                        f"{BEHAVIOUR_CHECK})")
+    p.add_argument("--k-max", type=int, default=30, help="behaviour: the most clusters the EM starts from (default 30)")
+    p.add_argument("--memory", type=int, default=10, help="behaviour: the VLMM's longest memory w (default 10)")
+    p.add_argument("--epsilon", type=float, default=1e-4, help="behaviour: the VLMM's growth threshold (default 1e-4)")
     p.add_argument("--voxel-sizes", default="4", help="voxel sizes in cm to draw components from (default 4)")
     p.add_argument("--step", type=int, default=3, help="use every STEP-th frame (default 3)")
     p.add_argument("--miss-support", type=int, default=TRAIN_CARVING["miss_support"], metavar="N",
@@ -123,8 +131,52 @@ def category_lines(cats, truth, pred) -> list[str]:
     return out + [f"  all       {len(truth):>7} components, correct {100 * float(np.mean(pred == truth)):.2f} %"]
 
 
+def main_behaviour(args) -> int:
+    """The behaviour model from the people of random tuning scenes (posed by our body
+    model on their true joints): clusters and VLMM, the model entropy (Eq. 2) on the
+    training and the held-out scenes' label sequences, written as JSON (default: the
+    model the pose worker loads, ``app/behaviour/behaviour.json``)."""
+    from app.behaviour.model import DEFAULT_PATH, train_behaviour, training_states
+    from app.benchmarks.accuracy import HELD_OUT_FROM, parse_seeds
+    from app.errors import InputError
+    from app.files import write_atomic
+
+    seeds = {}
+    for name, given, default in (("training", args.random, BEHAVIOUR_RANDOM),
+                                 ("held out", args.random_held_out, BEHAVIOUR_CHECK)):
+        text = default if given is None else given
+        chosen = parse_seeds(text) if text else []
+        if chosen and max(chosen) >= HELD_OUT_FROM:
+            raise InputError(f"random seeds {text}: seeds from {HELD_OUT_FROM} up are held out for reporting")
+        seeds[name] = chosen
+    if not seeds["training"]:
+        raise InputError("smartroom train behaviour needs training scenes (--random A:B)")
+
+    def progress(what):
+        return lambda done, total: print(f"  {what}: posed the people of {done}/{total} scenes", file=sys.stderr)
+
+    train = training_states(seeds["training"], progress=progress("training"))
+    held = training_states(seeds["held out"], progress=progress("held out")) if seeds["held out"] else []
+    model = train_behaviour(train, k_max=args.k_max, memory=args.memory, epsilon=args.epsilon)
+    h_train = model.vlmm.entropy([model.labels(s) for s in train])
+    h_held = model.vlmm.entropy([model.labels(s) for s in held]) if held else float("nan")
+    model.info.update({"training_seeds": seeds["training"], "held_out_seeds": seeds["held out"],
+                       "entropy_training_bits": round(h_train, 4), "entropy_held_out_bits": round(h_held, 4),
+                       "contexts": len(model.vlmm.contexts)})
+    print(f"behaviour model: {model.clusters.k} clusters of {model.info['frames']} frames "
+          f"({len(train)} sequences), VLMM of {len(model.vlmm.contexts)} contexts (memory {args.memory}, "
+          f"epsilon {args.epsilon:g}); model entropy {h_train:.3f} bits a frame on the training scenes, "
+          f"{h_held:.3f} on the held-out ones")
+    out = Path(args.out) if args.out else DEFAULT_PATH
+    write_atomic(out, model.to_json() + "\n")
+    print(f"smartroom train behaviour: wrote {out}", file=sys.stderr)
+    return 0
+
+
 def main(args) -> int:
     from app.errors import InputError
+    if args.target == "behaviour":
+        return main_behaviour(args)
     from app.files import write_json
     from app.tracking.classifier import DEFAULT_TREE
     from app.tracking.training import scores, train_tree
@@ -134,10 +186,10 @@ def main(args) -> int:
     except ValueError:
         raise InputError(f"--voxel-sizes {args.voxel_sizes}: expected centimetres like 2,4,10") from None
     train = [Path(r) for r in args.recordings] if args.recordings else _simulated(TRAIN_SCENES, seed=1)
-    train += _random(args.random)
+    train += _random(TRAIN_RANDOM if args.random is None else args.random)
     held = [Path(r) for r in args.held_out] if args.held_out is not None and args.held_out else \
         (_simulated(HELD_OUT_SCENES, seed=0) if args.held_out is None else [])
-    held += _random(args.random_held_out)
+    held += _random(CHECK_RANDOM if args.random_held_out is None else args.random_held_out)
     print("smartroom train classifier: components of", ", ".join(str(r) for r in train), file=sys.stderr)
     carving = {**TRAIN_CARVING, "miss_support": args.miss_support}
     x, y, cats = _components(train, sizes, args.step, carving)

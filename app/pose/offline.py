@@ -37,6 +37,7 @@ class ClipFrame:
     visible: dict                # id -> (15,) bool
     silhouettes: list | None = None   # the masks carved (hull, mog2), reduced as the reconstruction sends them
     cameras: list | None = None       # ... their cameras
+    colours: np.ndarray | None = None  # (N, 3) RGB of the voxels (hull, mog2 with colours=True)
 
 
 SOURCES = ("true", "hull", "mog2")
@@ -44,13 +45,14 @@ SOURCES = ("true", "hull", "mog2")
 
 def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, source: str = "true",
                    zenithal: bool = True, hide=None, tolerance: int = 1, occlusion: str = "none",
-                   surface: bool = False) -> tuple[list[ClipFrame], object]:
+                   surface: bool = False, colours: bool = False) -> tuple[list[ClipFrame], object]:
     """Frames ``frames`` (an iterable of indices) of a simulated scene; ``hide(frame,
     centres) -> keep mask`` can remove voxels (a deliberate occlusion). ``surface``:
     hull voxels carry the reconstruction's visibility surface flags (as in the
     pipeline) instead of the 6-neighbour boundary the observation computes. For
     ``mog2`` every frame from 0 is segmented (the background model adapts over the
-    run), only ``frames`` are reconstructed."""
+    run), only ``frames`` are reconstructed. ``colours``: hull and mog2 voxels carry the
+    reconstruction's colours (its visibility colouring, as the pipeline's)."""
     from app.simulation.occupancy import true_occupancy
     from app.simulation.simulator import Simulator
 
@@ -66,7 +68,8 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
         from app.segmentation import SegmentationParams, camera_segmenter, matched_scale
         scale = matched_scale(cal, voxel_size)
         sizes = {c.name: (c.width // scale, c.height // scale) for c in cal.cameras}
-        rec = Reconstructor(cal, voxel_size, mask_sizes=sizes, colouring="visibility" if surface else "none",
+        rec = Reconstructor(cal, voxel_size, mask_sizes=sizes,
+                            colouring="visibility" if (surface or colours) else "none",
                             min_top=0.25, tolerance=tolerance, occlusion=occlusion)
         if source == "mog2":
             # as the segmentation worker builds them: the floor's dark-shadow test needs the calibration
@@ -79,7 +82,7 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             continue
         people = sim.people(i)
         gt = sim.groundtruth(i, people)
-        flags = None
+        flags = voxel_colours = None
         if source == "true":
             idx = true_occupancy(sim.body_record(i, people), cal.room_min, voxel_size, dims)
             silhouettes = None     # true body voxels: no masks were carved
@@ -93,9 +96,10 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
                 masks = {c: segs[c].apply(images[c]) for c in sim.cameras}
             if i not in wanted:
                 continue
-            colours = {c: cv2.resize(images[c], sizes[c], interpolation=cv2.INTER_AREA) for c in sim.cameras} \
-                if surface else {}
-            idx, _, flags, _ = rec.reconstruct(masks, colours)
+            small = {c: cv2.resize(images[c], sizes[c], interpolation=cv2.INTER_AREA) for c in sim.cameras} \
+                if (surface or colours) else {}
+            idx, voxel_colours, flags, _ = rec.reconstruct(masks, small)
+            voxel_colours = voxel_colours if colours and len(voxel_colours) == len(idx) else None
             silhouettes = [reduce_mask(masks[c], SILHOUETTE_FACTOR) for c in sim.cameras]
             flags = flags if surface and len(flags) == len(idx) else None
         surface_flags = flags
@@ -103,6 +107,7 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
         if hide is not None:
             keep = hide(i, centres)
             centres = centres[keep]
+            voxel_colours = None if voxel_colours is None else voxel_colours[keep]
             surface_flags = None if surface_flags is None else np.asarray(surface_flags)[keep]
         ids = [p["id"] for p in gt["people"]]
         truth, visible = ground_truth_poses([gt])[i]
@@ -110,7 +115,8 @@ def simulated_clip(scene: str, frames, voxel_size: float = 0.02, seed: int = 0, 
             frame=i, centres=centres, surface=surface_flags, ids=ids,
             positions=np.array([p["centroid"] for p in gt["people"]], dtype=float).reshape(-1, 3),
             truth=truth, visible=visible,
-            silhouettes=silhouettes, cameras=None if silhouettes is None else list(sim.cameras)))
+            silhouettes=silhouettes, cameras=None if silhouettes is None else list(sim.cameras),
+            colours=voxel_colours))
     return out, cal
 
 
