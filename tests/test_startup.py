@@ -103,6 +103,10 @@ def test_a_compile_mid_run_is_not_the_runs_speed(long_recording, tmp_path):
     compiling = [i for i, ln in enumerate(heads) if "starting=compiling" in ln]
     during = heads[compiling[0]:compiling[-1] + 2]              # the compile, and the line after it
     assert all("verdict=waiting" in ln and "bottleneck" not in ln for ln in during), "\n".join(heads)
-    # after it, the run's own rate (some line: on a machine loaded by other tests a paced
-    # run may fall behind later, which the monitor then says, rightly)
-    assert any("verdict=real-time" in ln for ln in heads[compiling[-1] + 1:]), "\n".join(heads)
+    # after it, the run's own rate, not the compile's (4 / 7 = 0.57 if it were counted): some
+    # line at the bound stats.json's RTF is held to (on a machine loaded by the other test
+    # process a paced run may fall behind after the compile, which the monitor then says,
+    # rightly: one full run on 2026-11-27 read 0.82, 0.68, 0.74, 0.93 there, never real-time)
+    after = [float(ln.split("rtf=")[1].split()[0]) for ln in heads[compiling[-1] + 1:]
+             if not ln.startswith("monitor: rtf=-")]
+    assert after and max(after) >= 0.72, "\n".join(heads)
