@@ -226,13 +226,31 @@ def test_a_person_is_acquired_from_markers_alone_and_a_restored_snapshot_carries
     assert people.update(dets, [], np.zeros((0, 3))) == {} and not people.people   # the track ended
 
 
+@pytest.fixture(scope="module")
+def walk1_markers(tmp_path_factory):
+    """walk1 (held out from the marker tuning), 4 s at 640x480 with markers painted, and
+    the results of an undisturbed run of deploy/layouts/markers.yaml over it: (recording,
+    results)."""
+    from tests.conftest import smartroom
+
+    rec = tmp_path_factory.mktemp("sim") / "walk1"
+    r = smartroom("simulate", "--scene", "walk1", "--seconds", 4, "--markers", "--out", rec, "--quiet", timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path_factory.mktemp("run") / "worker"
+    r = smartroom("run", "--layout", "deploy/layouts/markers.yaml", "--recording", rec, "--headless", "--no-pace",
+                  "--out", out, timeout=400)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return rec, out
+
+
 @pytest.mark.integration
-def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector_runs(tmp_path_factory):
-    """walk1 (held out from the marker tuning), 4 s at 640x480 with markers painted: the
-    markers layout (a markers worker) and the same layout with the segmentation worker
-    detecting the markers in its process give the same poses, to the byte; MMTA at 100 mm
-    against the true joints (measured 0.859), every frame posed with every camera's markers.
-    A pose worker in marker mode with no detector in the layout is one line and exit 1."""
+def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector_runs(walk1_markers,
+                                                                                     tmp_path_factory):
+    """walk1 with markers: the markers layout (a markers worker) and the same layout with
+    the segmentation worker detecting the markers in its process give the same poses, to
+    the byte; MMTA at 100 mm against the true joints (measured 0.889), every frame posed
+    with every camera's markers. A pose worker in marker mode with no detector in the
+    layout is one line and exit 1."""
     import json
 
     import yaml
@@ -240,9 +258,7 @@ def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector
     from app.benchmarks.accuracy import score_scene
     from tests.conftest import smartroom
 
-    rec = tmp_path_factory.mktemp("sim") / "walk1"
-    r = smartroom("simulate", "--scene", "walk1", "--seconds", 4, "--markers", "--out", rec, "--quiet", timeout=300)
-    assert r.returncode == 0, r.stderr
+    rec, calm = walk1_markers
     layout = yaml.safe_load(open("deploy/layouts/markers.yaml"))
     in_segmentation = dict(layout, workers=[dict(w, params={"markers": "recording"}) if w["kind"] == "segmentation"
                                             else w for w in layout["workers"] if w["kind"] != "markers"])
@@ -250,18 +266,16 @@ def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector
     folder = tmp_path_factory.mktemp("layouts")
     for name, d in (("segmentation", in_segmentation), ("nowhere", nowhere)):
         (folder / f"{name}.yaml").write_text(yaml.safe_dump(d))
-    poses = {}
-    for name, path in (("worker", "deploy/layouts/markers.yaml"), ("segmentation", folder / "segmentation.yaml")):
-        out = tmp_path_factory.mktemp("run") / name
-        r = smartroom("run", "--layout", path, "--recording", rec, "--headless", "--no-pace", "--out", out,
-                      timeout=400)
-        assert r.returncode == 0, r.stderr[-2000:]
-        stats = json.loads((out / "stats.json").read_text())
+    out = tmp_path_factory.mktemp("run") / "segmentation"
+    r = smartroom("run", "--layout", folder / "segmentation.yaml", "--recording", rec, "--headless", "--no-pace",
+                  "--out", out, timeout=400)
+    assert r.returncode == 0, r.stderr[-2000:]
+    for run in (calm, out):
+        stats = json.loads((run / "stats.json").read_text())
         assert stats["complete"]
         used, posed = stats["workers"]["pose"]["marker_frames"]
         assert posed >= 90 and used == posed, stats["workers"]["pose"]
-        poses[name] = (out / "poses.jsonl").read_bytes()
-    assert poses["worker"] == poses["segmentation"]
+    assert (calm / "poses.jsonl").read_bytes() == (out / "poses.jsonl").read_bytes()
     score = score_scene(rec, out)["pose"]
     print(f"walk1 4 s, marker mode: MMTA {score['mmta']:.3f}, MMTP {score['mmtp_mm']:.1f} mm")
     assert score["mmta"] >= 0.8 and score["mmtp_mm"] <= 35, score
@@ -269,6 +283,42 @@ def test_the_pipeline_in_marker_mode_poses_a_held_out_clip_wherever_the_detector
                   "--out", tmp_path_factory.mktemp("run") / "nowhere", timeout=200)
     assert r.returncode != 0
     assert [ln for ln in r.stderr.splitlines() if "mode markers but the layout detects no markers" in ln], r.stderr
+
+
+@pytest.mark.integration
+def test_a_killed_marker_mode_pose_worker_carries_on_as_if_never_stopped(walk1_markers, tmp_path):
+    """kill -9 of the pose worker in marker mode after a snapshot (frame >= 40), then
+    SIGTERM of the markers worker: the pose worker restores its marker filters (both
+    facings while a track settles, particles, random streams) and catches up, so
+    poses.jsonl is that of the undisturbed run, byte for byte."""
+    import os
+    import signal
+    import time
+
+    from tests.conftest import start_smartroom
+    from tests.runs import stats_of, wait_for
+    from tests.test_stage_state import _child_pid, _snapshot_frame, assert_results_as_undisturbed
+
+    rec, calm = walk1_markers
+    out = tmp_path / "killed"
+    proc = start_smartroom("run", "--recording", rec, "--headless", "--no-pace", "--layout",
+                           "deploy/layouts/markers.yaml", "--out", out)
+    try:
+        assert wait_for(lambda: _snapshot_frame(out, "pose") >= 40, timeout=90, period=0.01), "no pose snapshot"
+        time.sleep(0.007)
+        os.kill(_child_pid(proc.pid, "pose"), signal.SIGKILL)
+        pid = wait_for(lambda: _child_pid(proc.pid, "markers"), timeout=30)
+        os.kill(pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=200)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True and s["stages"]["pose"]["restarts"] == 1 and s["stages"]["markers"]["restarts"] == 1, \
+        s.get("reasons")
+    assert "pose estimator restored at frame" in err, err[-2000:]
+    assert_results_as_undisturbed(out, calm)
 
 
 def test_the_markers_the_detections_place_in_the_room_are_the_visible_joints():
