@@ -226,6 +226,30 @@ def test_a_person_is_acquired_from_markers_alone_and_a_restored_snapshot_carries
     assert people.update(dets, [], np.zeros((0, 3))) == {} and not people.people   # the track ended
 
 
+def test_people_posed_by_two_threads_get_the_poses_of_one():
+    """Two people (crowd6's first frames, synthetic detections): ``threads: 2`` poses them
+    in parallel, each with their own filter and random stream, to the same bits."""
+    from app.markers.people import MarkerPeople, MarkerSettings
+    from app.simulation.simulator import Simulator
+
+    sim = Simulator("crowd6", fps=25, seconds=0.5)
+    cams = sim.calibration.cameras
+    outs = {}
+    for threads in (1, 2):
+        rng, got = np.random.default_rng(0), []
+        people = MarkerPeople(cams, MarkerSettings(particles=100, threads=threads))
+        for i in range(4):
+            g = sim.groundtruth(i)["people"][:2]
+            X = np.array([[p["joints"][j] for j in JOINTS] for p in g])
+            dets, _ = synthetic_detections(X, [p["height"] for p in g], cams, DetectorModel(0.9, 20, 4.0), rng)
+            blob = np.concatenate([_blob(x) for x in X])
+            res = people.update(dets, [p["id"] for p in g], X[:, 0], blob, np.repeat(np.arange(len(X)), 400))
+            got.append({k: v[0] for k, v in res.items()})
+        outs[threads] = got
+    assert len(outs[1][-1]) == 2
+    assert all(a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a) for a, b in zip(outs[1], outs[2]))
+
+
 @pytest.fixture(scope="module")
 def walk1_markers(tmp_path_factory):
     """walk1 (held out from the marker tuning), 4 s at 640x480 with markers painted, and

@@ -238,7 +238,8 @@ class Pose(Worker):
         return MarkerSettings(particles=int(p["marker_particles"]), layers=int(p["marker_layers"]),
                               rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
                               proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
-                              settle=int(p["marker_settle"]), floor=float(p["marker_floor"]), seed=int(p["seed"]))
+                              settle=int(p["marker_settle"]), floor=float(p["marker_floor"]), seed=int(p["seed"]),
+                              threads=int(p["threads"]))
 
     def _setup_markers(self) -> None:
         """Marker mode: the run's cameras, a detector in the layout, the kernels compiled."""

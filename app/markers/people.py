@@ -58,13 +58,14 @@ class MarkerSettings:
     acquire: int = 4            # filter runs on a track's first frame
     settle: int = 10            # frames a new track is followed facing either way (0: one frame's cost picks)
     floor: float = 0.1          # m: the lower ankle's prior (app.markers.likelihood); 0 = none (the thesis)
+    threads: int = 1            # people posed in parallel (each their own filter and random stream: same poses)
     seed: int = 0
 
     def validate(self) -> None:
         if self.cost not in COSTS:
             raise ValueError(f"marker_cost {self.cost!r} must be one of {', '.join(COSTS)}")
         if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0 \
-                or self.floor < 0:
+                or self.floor < 0 or self.threads < 1:
             raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0")
 
 
@@ -154,32 +155,43 @@ class MarkerPeople:
         the frame's tracks; ``centres`` the voxel centres and ``owner`` their track index
         (:func:`app.pose.estimator.assign_voxels`), for the stature of a new track (one
         without 30 voxels waits); ``only(track id)``: the tracks to pose (a share)."""
-        out = {}
-        alive = set()
-        for k, tid in enumerate(int(t) for t in ids):
-            if only is not None and not only(tid):
-                continue
-            alive.add(tid)
+        mine = [(k, int(t)) for k, t in enumerate(ids) if only is None or only(int(t))]
+
+        def pose_one(k: int, tid: int):
             if tid not in self.people:
-                mine = centres[owner == k] if centres is not None and owner is not None else np.zeros((0, 3))
-                height = person_stature(mine, voxel_size)
+                body = centres[owner == k] if centres is not None and owner is not None else np.zeros((0, 3))
+                height = person_stature(body, voxel_size)
                 if height is None:
-                    continue
-                self.people[tid] = self.acquire(tid, height, detections, positions[k])
-                self.frames[tid] = 0
+                    return None
+                hypotheses = self.acquire(tid, height, detections, positions[k])
+                hypotheses.sort(key=lambda h: h[1])
+                self.people[tid], self.frames[tid] = hypotheses, 0
                 self.starts[tid] = (np.asarray(positions[k], float).copy(), 0)
-                self.people[tid].sort(key=lambda h: h[1])
             else:
                 self._step(tid, detections, positions[k])
             joints = self.tracker(tid).joints()
-            out[tid] = (joints, np.ones(len(joints), dtype=bool))
+            return joints, np.ones(len(joints), dtype=bool)
+
+        if self.s.threads > 1 and len(mine) > 1:   # each person's filter alone: the kernels release the GIL
+            results = list(self._pool().map(lambda kt: pose_one(*kt), mine))
+        else:
+            results = [pose_one(k, tid) for k, tid in mine]
+        out = {tid: r for (_, tid), r in zip(mine, results) if r is not None}
+        alive = {tid for _, tid in mine}
         for tid in [t for t in self.people if t not in alive]:
             del self.people[tid], self.frames[tid], self.starts[tid]
         return out
 
+    def _pool(self):
+        if getattr(self, "_threads", None) is None:
+            from concurrent.futures import ThreadPoolExecutor
+            self._threads = ThreadPoolExecutor(self.s.threads, thread_name_prefix="markers")
+        return self._threads
+
 
 def _settings_key(s: MarkerSettings) -> str:
-    return json.dumps(asdict(s), sort_keys=True)
+    """What a snapshot must have been taken with (not the threads: they change no pose)."""
+    return json.dumps({k: v for k, v in asdict(s).items() if k != "threads"}, sort_keys=True)
 
 
 def state_arrays(people: MarkerPeople) -> dict[str, np.ndarray]:
