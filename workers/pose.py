@@ -195,11 +195,13 @@ class Pose(Worker):
         self.markers: dict[int, dict[str, np.ndarray]] = {}
         self.markers_newest: dict[str, int] = {}   # the newest frame of each camera's markers
         self.marker_frames = [0, 0]   # frames posed with every camera's markers, frames posed
-        if p.get("mode") == "markers":
+        markers = p.get("mode") == "markers"
+        # the silhouette term projects the model into the cameras the voxels were carved from,
+        # the keypoint term and marker mode into every camera of the run
+        self.calibration = self.run_calibration() if (markers or self.settings.silhouette > 0
+                                                      or self.settings.keypoints > 0) else None
+        if markers:
             self._setup_markers()
-        # the silhouette term projects the model into the cameras the voxels were carved from
-        self.calibration = self.run_calibration() if (self.settings.silhouette > 0 or self.settings.keypoints > 0) \
-            else None
         # the keypoints of a frame come from every keypoints worker of the layout
         from workers import producers_of
         self.keypoint_workers = set(producers_of(self.layout, "keypoints")) if self.settings.keypoints > 0 else set()
@@ -225,6 +227,8 @@ class Pose(Worker):
         BodyModel(1.75).joints(np.zeros(27))   # compile (or load) the kernels before the first frame
         from app.pose.estimator import assign_voxels
         assign_voxels(np.zeros((1, 3)), np.zeros((1, 3)), 1.0)
+        if markers:
+            return   # the markerless filters' terms and tables are not used
         if self.settings.silhouette > 0:
             from app.pose.silhouette import warm_up
             warm_up()
@@ -248,18 +252,17 @@ class Pose(Worker):
         if not producers_of(self.layout, "markers"):
             raise InputError("pose: mode markers but the layout detects no markers (a markers worker, or a "
                              "segmentation worker with a markers model: deploy/layouts/markers.yaml)")
-        self.marker_calibration = self.run_calibration()
-        if self.marker_calibration is None:
+        if self.calibration is None:
             raise InputError("pose: mode markers needs the run's calibration (the recording's, or --calibration)")
-        self.marker_people = MarkerPeople(self.marker_calibration.cameras, self._marker_settings())
-        warm = MarkerPeople(self.marker_calibration.cameras[:2], self._marker_settings())
+        self.marker_people = MarkerPeople(self.calibration.cameras, self._marker_settings())
+        warm = MarkerPeople(self.calibration.cameras[:2], self._marker_settings())
         warm.s.particles, warm.s.acquire = 20, 1
         blob = np.random.default_rng(0).uniform([-.2, -.2, 0], [.2, .2, 1.7], (40, 3))
         warm.update([np.zeros((0, 2)), np.zeros((0, 2))], [0], np.zeros((1, 3)), blob, np.zeros(40, np.int64))
 
     def admit(self, key: str, msg) -> str | None:
         if isinstance(msg, Markers) and (self.marker_people is None
-                                         or msg.camera not in self.marker_calibration.names):
+                                         or msg.camera not in self.calibration.names):
             return "unknown camera" if self.marker_people is not None else "markers outside marker mode"
         return None
 
@@ -309,7 +312,7 @@ class Pose(Worker):
         try:
             if self.marker_people is not None:
                 from app.markers.people import restore_people
-                est = self.marker_people = restore_people(self.marker_calibration.cameras, self._marker_settings(),
+                est = self.marker_people = restore_people(self.calibration.cameras, self._marker_settings(),
                                                           arrays)
             else:
                 est = restore_estimator(self._settings_for(grid), arrays)

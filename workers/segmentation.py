@@ -126,8 +126,7 @@ class Segmentation(Worker):
         self.markers = None
         if self.params["markers"]:
             from app.markers.detector import model_for_run
-            path = str(self.params["markers"])
-            self.markers = model_for_run("" if path == "recording" else path, run.recording, "segmentation")
+            self.markers = model_for_run(str(self.params["markers"]), run.recording, "segmentation")
 
     def _background(self, cam: str):
         if self.recording is None:

@@ -27,9 +27,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GaussianClusters", "fit_clusters", "log_gauss"]
+__all__ = ["GaussianClusters", "fit_clusters", "log_gauss", "significant"]
 
 LOG_2PI = np.log(2.0 * np.pi)
+
+
+def significant(a, digits: int = 7) -> list:
+    """``a`` as (nested) lists of floats rounded to ``digits`` significant digits (model files)."""
+    return np.vectorize(lambda v: float(f"{v:.{digits}g}"), otypes=[float])(np.asarray(a, float)).tolist()
 
 
 def log_gauss(X: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -62,11 +67,9 @@ class GaussianClusters:
         return np.argmax(self.log_densities(X) + np.log(self.weights), axis=1)
 
     def to_dict(self) -> dict:
-        """Plain lists, 7 significant digits (a model file of a few hundred kB)."""
-        def short(a):
-            return np.vectorize(lambda v: float(f"{v:.7g}"), otypes=[float])(a).tolist()
-        return {"weights": short(self.weights), "means": short(self.means), "covs": short(self.covs),
-                "message_length": float(self.message_length)}
+        """Plain lists, 7 significant digits (a model file of about a hundred kB)."""
+        return {"weights": significant(self.weights), "means": significant(self.means),
+                "covs": significant(self.covs), "message_length": float(self.message_length)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "GaussianClusters":
@@ -105,12 +108,11 @@ def fit_clusters(X: np.ndarray, k_max: int = 30, k_min: int = 1, tol: float = 1e
     for m in range(k_max):
         logu[:, m] = log_gauss(X, means[m], covs[m])
 
-    def message_length() -> tuple[float, float]:
+    def message_length() -> float:
         on = alive & (a > 0)
         loglik = float(np.sum(_logsumexp(logu[:, on] + np.log(a[on]), axis=1)))
         k = int(on.sum())
-        return (N / 2 * np.sum(np.log(n * a[on] / 12.0)) + k / 2 * np.log(n / 12.0) + k * (N + 1) / 2 - loglik,
-                loglik)
+        return N / 2 * np.sum(np.log(n * a[on] / 12.0)) + k / 2 * np.log(n / 12.0) + k * (N + 1) / 2 - loglik
 
     best = None
     while alive.sum() >= k_min:
@@ -135,13 +137,13 @@ def fit_clusters(X: np.ndarray, k_max: int = 30, k_min: int = 1, tol: float = 1e
                     break
             if not alive.any():
                 break
-            L, _ = message_length()
+            L = message_length()
             if abs(previous - L) < tol * abs(L):
                 break
             previous = L
         if not alive.any():
             break
-        L, _ = message_length()
+        L = message_length()
         if best is None or L < best.message_length:
             keep = np.flatnonzero(alive)
             best = GaussianClusters(a[keep] / a[keep].sum(), means[keep].copy(), covs[keep].copy(), float(L))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.behaviour.clusters import GaussianClusters, fit_clusters
+from app.behaviour.clusters import GaussianClusters, fit_clusters, significant
 from app.behaviour.vlmm import Vlmm, learn_vlmm
 from app.pose.model import N_DOF
 
@@ -79,10 +79,8 @@ class BehaviourModel:
         return self.clusters.label(features(states, self.subspace))
 
     def to_json(self) -> str:
-        def short(a):
-            return np.vectorize(lambda v: float(f"{v:.7g}"), otypes=[float])(a).tolist()
-        return json.dumps({"format": FORMAT, "fps": self.fps, "dofs": FEATURE_DOFS.tolist(),
-                           "subspace": {"mean": short(self.subspace.mean), "basis": short(self.subspace.basis)},
+        sub = {"mean": significant(self.subspace.mean), "basis": significant(self.subspace.basis)}
+        return json.dumps({"format": FORMAT, "fps": self.fps, "dofs": FEATURE_DOFS.tolist(), "subspace": sub,
                            "clusters": self.clusters.to_dict(), "vlmm": self.vlmm.to_dict(),
                            "info": self.info or {}}, separators=(",", ":"))
 

@@ -109,9 +109,10 @@ RECORDING_MODEL = "markers.json"
 
 
 def model_for_run(path: str, recording: str | None, who: str) -> ChromaModel:
-    """The chroma model a worker detects with: the file ``path``, or without one the
-    recording's ``markers.json``; neither is a one-line :class:`InputError` naming ``who``."""
-    if path:
+    """The chroma model a worker detects with: the file ``path``, or with ``""`` or
+    ``"recording"`` the recording's ``markers.json``; neither is a one-line
+    :class:`InputError` naming ``who``."""
+    if path and path != "recording":
         return ChromaModel.load(path)
     if recording and (Path(recording) / RECORDING_MODEL).is_file():
         return ChromaModel.load(Path(recording) / RECORDING_MODEL)

@@ -88,7 +88,7 @@ class MarkerPeople:
         # either way) for the first ``settle`` frames, then the better one
         self.people: dict[int, list[list]] = {}
         self.frames: dict[int, int] = {}
-        self.starts: dict[int, tuple] = {}   # the track's position when it was acquired
+        self.starts: dict[int, np.ndarray] = {}   # the track's position when it was acquired
 
     def tracker(self, track: int) -> MarkerTracker:
         """The track's filter (its better hypothesis so far)."""
@@ -134,8 +134,7 @@ class MarkerPeople:
 
     def _step(self, track: int, detections, position) -> None:
         hypotheses = self.people[track]
-        first, _ = self.starts[track]
-        moved = np.asarray(position[:2], float) - first[:2]
+        moved = np.asarray(position[:2], float) - self.starts[track][:2]
         walking = len(hypotheses) > 1 and np.hypot(*moved) > WALKED
         for h in hypotheses:
             h[0].step(detections)
@@ -166,7 +165,7 @@ class MarkerPeople:
                 hypotheses = self.acquire(tid, height, detections, positions[k])
                 hypotheses.sort(key=lambda h: h[1])
                 self.people[tid], self.frames[tid] = hypotheses, 0
-                self.starts[tid] = (np.asarray(positions[k], float).copy(), 0)
+                self.starts[tid] = np.asarray(positions[k], float).copy()
             else:
                 self._step(tid, detections, positions[k])
             joints = self.tracker(tid).joints()
@@ -201,7 +200,7 @@ def state_arrays(people: MarkerPeople) -> dict[str, np.ndarray]:
     entries = []
     for tid, hypotheses in people.people.items():
         entry = {"id": int(tid), "frames": int(people.frames[tid]), "hypotheses": [],
-                 "start": [float(v) for v in people.starts[tid][0]]}
+                 "start": [float(v) for v in people.starts[tid]]}
         for n, (tr, cost) in enumerate(hypotheses):
             entry["hypotheses"].append({"height": float(tr.model.height), "cost": float(cost),
                                         "rng": tr.filter.rng.bit_generator.state})
@@ -246,7 +245,7 @@ def restore_people(cameras, settings: MarkerSettings, arrays) -> MarkerPeople:
             if start.shape != (3,) or not np.isfinite(start).all():
                 raise ValueError(f"track {tid}: start {e['start']!r}")
             people.people[tid], people.frames[tid] = hypotheses, int(e["frames"])
-            people.starts[tid] = (start, 0)
+            people.starts[tid] = start
     except (KeyError, ValueError, TypeError) as exc:
         raise SnapshotError(f"marker snapshot: {exc}") from None
     return people
@@ -260,10 +259,12 @@ def pose_marker_frame(people: MarkerPeople, vox, ids, positions, detections: dic
     stature)."""
     from app.pose.estimator import assign_voxels
 
-    centres = vox.centres()
-    if vox.misses is not None and len(vox.misses) == len(centres) and len(vox.cameras) > 1:
-        centres = centres[np.asarray(vox.misses) == 0]
-    owner = assign_voxels(centres, positions, reach)
+    centres = owner = None
+    if any(int(t) not in people.people and (only is None or only(int(t))) for t in ids):   # a new track's stature
+        centres = vox.centres()
+        if vox.misses is not None and len(vox.misses) == len(centres) and len(vox.cameras) > 1:
+            centres = centres[np.asarray(vox.misses) == 0]
+        owner = assign_voxels(centres, positions, reach)
     per_camera = [np.asarray(detections.get(c.name, np.zeros((0, 2))), np.float64).reshape(-1, 2)
                   for c in people.cameras]
     return people.update(per_camera, ids, positions, centres, owner, float(vox.voxel_size), only=only)
