@@ -217,3 +217,68 @@ def blob_divergences(model: BlobModel, fitted: FittedBlobs, states: np.ndarray) 
                  model.local_mean, model.local_var, model.colour_mean, model.colour_cov,
                  np.maximum(model.weight, 1e-6), fitted.mean, inv, logdet, np.maximum(fitted.weight, 1e-6), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _voxel_logliks(states, height, seg_parent, seg_offset, dof_segment, dof_axis, blob_seg, local_mean, inv_var,
+                   spatial_norm, colour_term, points, floor, out):
+    """Mean over the voxels of log(max(sum_b w_b N(p | blob b of the state), floor)) for each state."""
+    P = states.shape[0]
+    B = blob_seg.shape[0]
+    M = points.shape[0]
+    R = np.empty((seg_parent.shape[0], 3, 3))
+    O = np.empty((seg_parent.shape[0], 3))
+    centre = np.empty((B, 3))
+    axes = np.empty((B, 3, 3))
+    lfloor = math.log(floor)
+    ls = np.empty(B)
+    for p in range(P):
+        fk_segments(states[p], height, seg_parent, seg_offset, dof_segment, dof_axis, R, O)
+        for b in range(B):
+            s = blob_seg[b]
+            for i in range(3):
+                centre[b, i] = O[s, i] + R[s, i, 0] * local_mean[b, 0] + R[s, i, 1] * local_mean[b, 1] + \
+                    R[s, i, 2] * local_mean[b, 2]
+                for j in range(3):
+                    axes[b, i, j] = R[s, i, j]
+        total = 0.0
+        for m in range(M):
+            best = lfloor
+            acc = 0.0
+            for b in range(B):
+                dx = points[m, 0] - centre[b, 0]
+                dy = points[m, 1] - centre[b, 1]
+                dz = points[m, 2] - centre[b, 2]
+                q = 0.0
+                for k in range(3):
+                    u = axes[b, 0, k] * dx + axes[b, 1, k] * dy + axes[b, 2, k] * dz
+                    q += u * u * inv_var[b, k]
+                ls[b] = colour_term[m, b] + spatial_norm[b] - 0.5 * q
+                if ls[b] > best:
+                    best = ls[b]
+            acc = math.exp(lfloor - best)
+            for b in range(B):
+                ls[b] = math.exp(ls[b] - best)
+                acc += ls[b]
+            total += best + math.log(acc)
+        out[p] = total / max(M, 1)
+
+
+def voxel_logliks(model: BlobModel, states: np.ndarray, centres, colours, floor: float = 1e-3) -> np.ndarray:
+    """The voxels' mean log-likelihood under each state's blobs (P,): the mixture of the
+    blobs posed by the state (weights the shares the blobs were learnt with), each voxel's
+    likelihood floored at ``floor`` (a voxel no blob explains, the hull's excess, costs a
+    bounded amount)."""
+    states = np.ascontiguousarray(np.atleast_2d(states), dtype=np.float64)
+    P = _points(centres, colours)
+    out = np.empty(len(states))
+    w = np.maximum(model.weight, 1e-6)
+    cinv = np.linalg.inv(model.colour_cov)
+    dc = P[:, None, 3:] - model.colour_mean[None]
+    colour_term = (-0.5 * np.einsum("nbi,bij,nbj->nb", dc, cinv, dc) - 0.5 * np.linalg.slogdet(model.colour_cov)[1]
+                   + np.log(w))
+    spatial_norm = -0.5 * np.log(np.prod(model.local_var, axis=1)) - 3.0 * math.log(2 * math.pi)
+    _voxel_logliks(states, model.height, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, model.segment,
+                   model.local_mean, 1.0 / model.local_var, spatial_norm, np.ascontiguousarray(colour_term),
+                   np.ascontiguousarray(P[:, :3]), float(floor), out)
+    return out

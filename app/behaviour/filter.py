@@ -20,7 +20,8 @@ cluster the last label of ``q``). Prediction (:meth:`BehaviourFilter.predict`):
 - joint limits clip the angles (the paper's bounding values, §3.1).
 
 The VLMM state of every particle goes back to the root on :meth:`recover` (§6.3: a fit
-of the blobs too poor to trust), which spreads the particles over the clusters.
+of the blobs too poor to trust), and half the particles are drawn afresh from the
+clusters (the paper's "motion prototypes").
 """
 from __future__ import annotations
 
@@ -69,9 +70,24 @@ class BehaviourFilter:
         self.vlmm_state = [self.model.vlmm.next_state((), int(k)) for k in self.cluster]
         self.estimate = np.asarray(state, float).copy()
 
-    def recover(self) -> None:
-        """§6.3: forget the VLMM states (the particles spread over the clusters next frame)."""
+    def recover(self, spread: float = 0.5) -> None:
+        """§6.3: forget the VLMM states and spread a share ``spread`` of the particles over
+        the motion prototypes: their angles and velocities drawn from a cluster picked by
+        its weight (the global parameters kept: the track still holds the body)."""
         self.vlmm_state = [()] * self.n
+        m = int(round(spread * self.n))
+        if m <= 0:
+            return
+        c, rng = self.model.clusters, self.rng
+        who = rng.choice(self.n, m, replace=False)
+        k = np.minimum(np.searchsorted(np.cumsum(c.weights) / c.weights.sum(), rng.random(m)), c.k - 1)
+        drawn = c.means[k] + np.einsum("nij,nj->ni", self.sqrt_cov[k], rng.standard_normal((m, 2 * self.d)))
+        x, v = drawn[:, :self.d], drawn[:, self.d:]
+        states = self.states[who].copy()
+        states[:, FEATURE_DOFS] = self.sub.mean + x @ self.sub.basis.T
+        self.states[who] = np.clip(states, LIMITS_LO, LIMITS_HI)
+        self.velocity[who] = v
+        self.cluster[who] = k
 
     def support(self) -> dict[int, float]:
         """Share of the particles in each cluster (the blob fit's starts, §6.3)."""
@@ -133,11 +149,17 @@ class BehaviourFilter:
         lw = np.asarray(log_weights, float)
         best = int(np.argmax(lw))
         self.estimate = self.states[best].copy()
-        w = np.exp(lw - lw[best])
+        self.resample(lw)
+        return self.estimate
+
+    def resample(self, log_weights: np.ndarray) -> None:
+        """Systematic resampling by ``log_weights``, each particle's velocity, cluster and
+        VLMM state with it."""
+        lw = np.asarray(log_weights, float)
+        w = np.exp(lw - lw.max())
         w /= w.sum()
         positions = (self.rng.random() + np.arange(self.n)) / self.n
         idx = np.minimum(np.searchsorted(np.cumsum(w), positions), self.n - 1)
         self.states, self.velocity = self.states[idx], self.velocity[idx]
         self.cluster = self.cluster[idx]
         self.vlmm_state = [self.vlmm_state[i] for i in idx]
-        return self.estimate
