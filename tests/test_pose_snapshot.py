@@ -24,19 +24,23 @@ def _step(est, fr):
     return est.update(fr.centres, fr.surface, fr.ids, fr.positions)
 
 
-@pytest.mark.parametrize("method", ["shbm", "apf", "shbm+ddm"])
+@pytest.mark.parametrize("method", ["shbm", "apf", "shbm+ddm", "behaviour"])
 def test_a_restored_estimator_carries_on_bit_for_bit(clip, method):
     frames, cal = clip
     kw = dict(particles=100, layers=3) if method == "apf" else {}
+    if method == "behaviour":   # cut after the behaviour tracker took over (frame 5)
+        kw = dict(behaviour_start=5, behaviour_particles=100)
     whole = PoseEstimator(_settings(cal, method=method, **kw))
     first = PoseEstimator(_settings(cal, method=method, **kw))
-    cut = 11 if method.endswith("ddm") else 6     # DDM: after its lock-on (lock_frames 10)
+    cut = {"shbm+ddm": 11, "behaviour": 8}.get(method, 6)     # DDM: after its lock-on (lock_frames 10)
     for fr in frames[:cut]:
         _step(whole, fr), _step(first, fr)
     arrays = through_npz(estimator_state(first))
     del first
     again = restore_estimator(_settings(cal, method=method, **kw), arrays)
     assert set(again.people) == set(whole.people) and again.people
+    if method == "behaviour":
+        assert all(p.tracker is not None for p in again.people.values())
     for fr in frames[cut:]:
         a, b = _step(whole, fr), _step(again, fr)
         assert a.keys() == b.keys() and a

@@ -14,7 +14,9 @@ by every person of the frame, whoever poses them, so the poses of a sharded or t
 layout are those of one worker, to the bit (``deploy/layouts/many_cores.yaml``, issue 26).
 
 ``method``: ``shbm`` (SHBM-APF, §7.3, default), ``apf`` (§6.5), ``ddm`` (APF with DDM
-limb switching, §7.4) or ``shbm+ddm``; ``density`` is the model's density factor
+limb switching, §7.4), ``shbm+ddm`` or ``behaviour`` (Caillette's learnt behaviour model
+and coloured Gaussian blobs, :mod:`app.behaviour`, docs/behaviour.md: ``behaviour_*``;
+the voxels' colours are its evidence, so the reconstruction should colour them); ``density`` is the model's density factor
 (Eq. 6.26); ``likelihood`` ``partitioned`` (Eqs. 6.23-6.25) or ``global`` (6.17-6.22);
 ``coverage``, ``floor``, ``heading`` and ``ik`` the additions for visual hulls
 (:mod:`app.pose.coverage`, :mod:`app.pose.detections`; ``coverage: 0, floor: 0,
@@ -98,7 +100,18 @@ class Pose(Worker):
         "marker_acquire": 4,        # markers: filter runs on a track's first frame
         "marker_settle": 10,        # markers: frames a new track is followed facing either way
         "marker_floor": 0.1,        # markers: m, the lower ankle's floor prior; 0 = none (the thesis)
-        "method": "shbm",           # shbm, apf, ddm, shbm+ddm
+        "method": "shbm",           # shbm, apf, ddm, shbm+ddm, behaviour (Caillette's tracker, app.behaviour)
+        "behaviour_start": 10,      # behaviour: a track's first frames posed by SHBM-APF, whose pose teaches the blobs
+        "behaviour_particles": 500,  # behaviour: particles
+        "behaviour_lambda": 0.5,    # behaviour: the local dynamics' noise attenuation (Eq. 4)
+        "behaviour_evaluation": "model",  # behaviour: model (SHBM-APF's likelihood, annealed; ours), kl (the paper's
+                                    # blob fit and relative entropy) or voxels (the voxels' likelihood under the blobs)
+        "behaviour_layers": 3,      # behaviour, model: annealing layers about the prediction (1: the paper's SIR)
+        "behaviour_refine": 0.25,   # behaviour, model: their diffusion, times the APF's sigma_0
+        "behaviour_temperature": 20.0,  # behaviour, voxels: log-weight = this x the voxels' mean log-likelihood
+        "behaviour_recovery": "shbm",  # behaviour lost: SHBM-APF finds the person again (shbm; ours) or the motion
+                                    # prototypes alone (prototypes, the paper's §6.3)
+        "behaviour_model": "",      # behaviour: the model file (smartroom train behaviour); "" = the shipped one
         "density": 2.0,             # delta of Eq. 6.26 (1 = the data's voxel size)
         "likelihood": "partitioned",  # or global
         "particles": 600,           # APF: particles per layer
@@ -153,7 +166,8 @@ class Pose(Worker):
         "seed": 0,
     }
     CHOICES = {"mode": ("markerless", "markers"), "marker_cost": ("thesis", "reprojection", "both_ways"),
-               "method": ("shbm", "apf", "ddm", "shbm+ddm"), "likelihood": ("partitioned", "global"),
+               "method": ("shbm", "apf", "ddm", "shbm+ddm", "behaviour"), "likelihood": ("partitioned", "global"),
+               "behaviour_evaluation": ("model", "kl", "voxels"), "behaviour_recovery": ("shbm", "prototypes"),
                "ik": ("table", "straight"), "voxels": ("consensus", "tolerant", "all"),
                "surface": ("outer", "boundary"), "stature": ("axis", "top")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
@@ -166,6 +180,8 @@ class Pose(Worker):
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
               "keypoints": (0.0, 10.0), "keypoint_gate": (0.01, 10.0), "keypoint_conf": (0.0, 1.0),
               "snapshot_frames": (1, 1000), "threads": (1, 64),
+              "behaviour_start": (1, 1000), "behaviour_particles": (10, 20000), "behaviour_lambda": (0.0, 5.0),
+              "behaviour_layers": (1, 12), "behaviour_refine": (0.0, 10.0), "behaviour_temperature": (0.0, 1e4),
               "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_rho": (1.0, 500.0),
               "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
               "marker_settle": (0, 1000), "marker_floor": (0.0, 10.0)}
@@ -235,6 +251,9 @@ class Pose(Worker):
         if self.settings.ik == "table":
             from app.pose.detections import arm_table
             arm_table("l"), arm_table("r")      # the inverse-kinematics tables, before the first frame
+        if self.settings.method == "behaviour":
+            from app.pose.estimator import behaviour_model
+            behaviour_model(self.settings.behaviour_model)   # an unreadable model file: a clear error now
 
     def _marker_settings(self):
         from app.markers.people import MarkerSettings

@@ -19,7 +19,11 @@ solve the arm's inverse kinematics by look-up (``ik = "table"``, :mod:`app.pose.
 ``"straight"`` the earlier straight arm).
 
 Methods: ``apf`` (§6.5, Alg. 3), ``shbm`` (SHBM-APF, §7.3), ``ddm`` (APF with DDM limb
-switching, §7.4) and ``shbm+ddm`` (both, the thesis's future work).
+switching, §7.4), ``shbm+ddm`` (both, the thesis's future work) and ``behaviour``
+(Caillette, Galata and Howard's learnt behaviour model and Gaussian blobs,
+:mod:`app.behaviour`: the first ``behaviour_start`` frames of a track are posed by SHBM-APF,
+whose last estimate teaches the blobs, then :class:`~app.behaviour.tracker.BehaviourTracker`
+poses it from the voxels and their colours).
 """
 from __future__ import annotations
 
@@ -41,7 +45,7 @@ from app.keypoints.fusion import keypoint_hands
 
 __all__ = ["PoseSettings", "PersonPose", "PoseEstimator", "METHODS", "assign_voxels"]
 
-METHODS = ("apf", "shbm", "ddm", "shbm+ddm")
+METHODS = ("apf", "shbm", "ddm", "shbm+ddm", "behaviour")
 
 
 @dataclass
@@ -85,6 +89,17 @@ class PoseSettings:
     low_legs: float = 0.5           # share of the importance draws with a lowered root whose legs bend to the floor
                                     # (sitting, app.pose.detections.Importance); 0 = off
     height_frames: int = 5
+    behaviour_start: int = 10       # behaviour: frames posed by SHBM-APF before the blobs are learnt
+    behaviour_particles: int = 500  # behaviour: particles (the paper's Table 1: 100-1000)
+    behaviour_lambda: float = 0.5   # behaviour: lambda of Eq. 4, the local dynamics' noise attenuation
+    behaviour_evaluation: str = "model"  # behaviour: kl (the paper's blob fit and relative entropy), voxels (the
+                                      # voxels' likelihood under the blobs) or model (the likelihood above; ours)
+    behaviour_model: str = ""       # behaviour: the model file (smartroom train behaviour); "" the shipped one
+    behaviour_temperature: float = 20.0  # behaviour, voxels evaluation: log-weight = this x the mean log-likelihood
+    behaviour_recovery: str = "shbm"  # behaviour lost: SHBM-APF finds the person again (shbm) or the paper's
+                                      # motion prototypes alone (prototypes)
+    behaviour_layers: int = 3       # behaviour, model evaluation: 1 = the paper's one weighing; more: annealing layers
+    behaviour_refine: float = 0.25  # ... their diffusion, times the APF's sigma_0 (Eq. 3.22)
     threads: int = 1                # people posed in parallel by this many threads (the kernels release the GIL)
     seed: int = 0
     room_lo: tuple = (0.0, 0.0, 0.0)
@@ -125,6 +140,12 @@ class PoseSettings:
             raise ValueError("keypoints must be >= 0 (0: off), keypoint_gate > 0, keypoint_conf in 0..1")
         if not 0 <= self.low_legs <= 1:
             raise ValueError(f"low_legs {self.low_legs} must be in 0..1 (0: off)")
+        if self.behaviour_recovery not in ("shbm", "prototypes"):
+            raise ValueError(f"behaviour_recovery {self.behaviour_recovery!r} must be shbm or prototypes")
+        if self.behaviour_evaluation not in ("kl", "voxels", "model"):
+            raise ValueError(f"behaviour_evaluation {self.behaviour_evaluation!r} must be kl, voxels or model")
+        if self.behaviour_particles < 1 or self.behaviour_start < 1 or not self.behaviour_lambda >= 0:
+            raise ValueError("behaviour_particles and behaviour_start must be >= 1, behaviour_lambda >= 0")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
             raise ValueError("gamma and gamma_min must be >= 1, gamma_budget >= 0 (0: gamma for everyone)")
 
@@ -186,6 +207,16 @@ def blob_top(centres: np.ndarray, axis: bool = True, band: float = 0.75, radius:
 
 
 _FLESH_CACHE: dict = {}
+_BEHAVIOUR_MODELS: dict = {}
+
+
+def behaviour_model(path: str = ""):
+    """The :class:`~app.behaviour.model.BehaviourModel` of ``path`` ("" the shipped one),
+    read once a process (:class:`~app.errors.InputError` when it cannot be)."""
+    if path not in _BEHAVIOUR_MODELS:
+        from app.behaviour.model import DEFAULT_PATH, BehaviourModel
+        _BEHAVIOUR_MODELS[path] = BehaviourModel.load(path or DEFAULT_PATH)
+    return _BEHAVIOUR_MODELS[path]
 
 
 def _flesh(height, voxel_size, density):
@@ -210,6 +241,8 @@ class PersonPose:
         self.last_position = None
         self.velocity = None
         self.frames = 0
+        self.tracker = None     # behaviour: Caillette's tracker, once the blobs are learnt
+        self.handback = 0       # behaviour: frames SHBM-APF still poses after the tracker was lost
 
     def build(self, height: float) -> None:
         """The body, its fleshed model and scorer and a fresh filter for stature ``height``."""
@@ -224,21 +257,22 @@ class PersonPose:
         self.silhouette_lut = (kernel_lut(_flesh(height, s.voxel_size, s.silhouette_density))
                                if s.silhouette > 0 else None)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
-        if s.method.startswith("shbm"):
+        if s.method.startswith("shbm") or s.method == "behaviour":   # behaviour: SHBM-APF's first frames
             self.filter = SHBMAPF(gamma=s.gamma, **kw)
         else:
             self.filter = APF(particles=s.particles, layers=s.layers, alpha=s.alpha, **kw)
         self.switch = LimbSwitch(rng=self.rng, criterion=s.limb_criterion) if s.method.endswith("ddm") else None
 
     def update(self, centres: np.ndarray, surface, position: np.ndarray, gamma: int | None = None,
-               silhouettes=None, keypoints=None):
+               silhouettes=None, keypoints=None, colours=None):
         """One frame of this person: ``(joints (15, 3), active (15,))`` or None before the
         body is known; ``gamma``: SHBM-APF's particles per new DoF this frame (the
         estimator's budget, :meth:`PoseSettings.shbm_gamma`), None for the settings';
         ``silhouettes``: the person's :class:`~app.pose.silhouette.PersonSilhouettes`
         (scored when the settings' ``silhouette`` > 0) or None; ``keypoints``: the person's
         :class:`~app.keypoints.fusion.PersonKeypoints` (scored when the settings'
-        ``keypoints`` > 0, their triangulated wrists the importance function's hands) or None."""
+        ``keypoints`` > 0, their triangulated wrists the importance function's hands) or None;
+        ``colours``: the voxels' RGB (N, 3) or None (the behaviour method's blobs)."""
         s = self.s
         velocity = None
         if self.last_position is not None:
@@ -257,6 +291,8 @@ class PersonPose:
                 keep = self.filter
                 self.build(h)
                 self.filter.particles = keep.particles
+        if self.tracker is not None and not self.handback and s.behaviour_evaluation != "model":
+            return self._behaviour(self.tracker.step(centres, colours, position), position)
         if gamma is not None and isinstance(self.filter, SHBMAPF):
             self.filter.set_gamma(gamma)
         obs = observe(centres, s.voxel_size, s.room_lo, s.room_hi, surface=surface, mode=s.surface)
@@ -273,6 +309,9 @@ class PersonPose:
             self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
         use_kp = keypoints is not None and s.keypoints > 0
         self.scorer.keypoints = (keypoints, s.keypoints, s.keypoint_gate, s.keypoint_conf) if use_kp else None
+        if self.tracker is not None and not self.handback:   # behaviour weighed by the likelihood set up above
+            return self._behaviour(self.tracker.step(centres, colours, position, score=self.scorer.log_weights),
+                                   position)
         det = detect(centres, self.height, velocity)
         if det is not None and use_kp and s.keypoint_hands:
             hands = keypoint_hands(keypoints, self.height, s.keypoint_conf)
@@ -282,6 +321,8 @@ class PersonPose:
         if self.state is None:
             start = neutral_state(self.height, (position[0], position[1], None))
             self.filter.reset(start, importance=importance)
+        elif self.handback == s.behaviour_start:   # behaviour lost: SHBM-APF searches afresh from the last pose
+            self.filter.reset(self.state, importance=importance)
         elif self.last_position is not None:
             self.filter.shift(position - self.last_position)
         if self.switch is not None:
@@ -296,6 +337,37 @@ class PersonPose:
         est = self.filter.step(self.scorer, active=active, importance=importance)
         if self.switch is not None:
             est = self.switch.update(self.scorer, self.filter, est)
+        if s.method == "behaviour" and self.tracker is None and self.frames + 1 >= max(s.behaviour_start,
+                                                                                      s.height_frames):
+            self.tracker = self.behaviour_tracker()
+            self.tracker.start(est, centres, colours, position)
+        elif self.handback:
+            self.handback -= 1
+            if not self.handback:
+                self.tracker.restart(est, position)
+        return self._posed(est, position)
+
+    def _behaviour(self, est: np.ndarray, position):
+        """A frame the behaviour tracker posed; lost, SHBM-APF poses the next
+        ``behaviour_start`` frames (``behaviour_recovery: shbm``) and the tracker restarts
+        from its pose, or the tracker spreads its particles over the motion prototypes alone
+        (``prototypes``, the paper's §6.3)."""
+        if self.tracker.lost_now and self.s.behaviour_recovery == "shbm":
+            self.handback = self.s.behaviour_start
+        return self._posed(est, position)
+
+    def behaviour_tracker(self):
+        """A :class:`~app.behaviour.tracker.BehaviourTracker` of the settings for this
+        person's stature, drawing from the person's random stream."""
+        from app.behaviour.tracker import BehaviourTracker
+        s = self.s
+        return BehaviourTracker(behaviour_model(s.behaviour_model), self.height, particles=s.behaviour_particles,
+                                lam=s.behaviour_lambda, evaluation=s.behaviour_evaluation, rng=self.rng,
+                                temperature=s.behaviour_temperature,
+                                layers=s.behaviour_layers, refine=s.behaviour_refine)
+
+    def _posed(self, est: np.ndarray, position) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's outcome: the state kept, the joints and their flags."""
         self.state = est
         self.last_position = np.asarray(position, dtype=np.float64).copy()
         self.frames += 1
@@ -305,6 +377,10 @@ class PersonPose:
 
     def corrupt(self, state: np.ndarray) -> None:
         """Replace the filter's belief by ``state`` (a test of recovery)."""
+        if self.tracker is not None:
+            self.tracker.filter.reset(state)
+            self.state = state.copy()
+            return
         n = len(self.filter.particles)
         self.filter.particles = np.tile(state, (n, 1))
         self.state = state.copy()
@@ -328,12 +404,15 @@ class PoseEstimator:
             pool = self._threads = ThreadPoolExecutor(self.settings.threads, thread_name_prefix="pose")
         return pool
 
-    def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None, keypoints=None) -> dict:
+    def update(self, centres: np.ndarray, surface, ids, positions, only=None, view=None, keypoints=None,
+               colours=None) -> dict:
         """``{track id: (joints (15, 3), active (15,))}`` for every track with a body
         (``only``: a predicate on track ids; the others still own their voxels);
         ``view``: the frame's :class:`~app.pose.silhouette.SilhouetteView` or None;
-        ``keypoints``: ``{track id: PersonKeypoints}`` (:mod:`app.keypoints.fusion`) or None."""
+        ``keypoints``: ``{track id: PersonKeypoints}`` (:mod:`app.keypoints.fusion`) or None;
+        ``colours``: the voxels' RGB (N, 3) (the behaviour method) or None."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        colours = None if colours is None or len(colours) != len(centres) else np.asarray(colours)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
         owner = assign_voxels(centres, positions, self.settings.reach)
@@ -358,7 +437,8 @@ class PoseEstimator:
             mine = owner == k
             jobs.append((tid, person, (centres[mine], None if surface is None else surface[mine], positions[k], gamma,
                                        None if silhouettes is None else silhouettes[k],
-                                       None if keypoints is None else keypoints.get(tid))))
+                                       None if keypoints is None else keypoints.get(tid),
+                                       None if colours is None else colours[mine])))
         if self.settings.threads > 1 and len(jobs) > 1:
             results = list(self._pool().map(lambda job: job[1].update(*job[2]), jobs))
         else:

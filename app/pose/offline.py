@@ -23,7 +23,7 @@ from app.messages import JOINTS
 from app.pose.estimator import PoseEstimator, PoseSettings
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask
 
-__all__ = ["ClipFrame", "simulated_clip", "run_clip"]
+__all__ = ["ClipFrame", "simulated_clip", "run_clip", "clip_errors", "people_errors"]
 
 
 @dataclass
@@ -135,7 +135,7 @@ def run_clip(clip: list[ClipFrame], settings: PoseSettings, corrupt=None, calibr
             corrupt(fr.frame, est)
         t0, c0 = time.perf_counter(), time.thread_time()
         view, _ = silhouette_view(fr.silhouettes or [], fr.cameras or [], calibration, settings)
-        res = est.update(fr.centres, fr.surface, fr.ids, fr.positions, view=view)
+        res = est.update(fr.centres, fr.surface, fr.ids, fr.positions, view=view, colours=fr.colours)
         ms.append(1e3 * (time.perf_counter() - t0))
         cpu_ms.append(1e3 * (time.thread_time() - c0))
         estimates.append({k: v[0] for k, v in res.items()})
@@ -152,3 +152,21 @@ def clip_errors(clip: list[ClipFrame], estimates: list) -> np.ndarray:
                 best = min(est.values(), key=lambda j: np.linalg.norm(j[0] - joints[0]))
                 out[t] = np.linalg.norm(best - joints, axis=1)
     return out
+
+
+def people_errors(clip: list[ClipFrame], estimates: list, warmup: int = 0) -> tuple[np.ndarray, int]:
+    """Joint errors ``(R, 15)`` of every person of a clip, one row per person and frame
+    after the person's first ``warmup`` frames in the room (estimates matched to the truth
+    by track id: the clip's tracks are the true people), and the joints of those frames a
+    person had no pose (missed, for :func:`app.evaluation.pose.point_metrics`)."""
+    rows, missed, seen = [], 0, {}
+    for fr, est in zip(clip, estimates):
+        for pid, joints in fr.truth.items():
+            seen[pid] = seen.get(pid, 0) + 1
+            if seen[pid] <= warmup:
+                continue
+            if pid in est:
+                rows.append(np.linalg.norm(est[pid] - joints, axis=1))
+            else:
+                missed += len(JOINTS)
+    return np.array(rows).reshape(-1, len(JOINTS)), missed

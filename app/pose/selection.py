@@ -95,11 +95,13 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
     keep = pose_subset(vox.misses, centres, positions, mode=params["voxels"], cameras=len(vox.cameras),
                        low=float(params["tolerant_low"]), near=float(params["tolerant_near"]),
                        views=int(params["tolerant_views"]))
+    colours = vox.colours if vox.colours is not None and len(vox.colours) == len(centres) else None
     kept = None
     if keep is not None:
         centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
+        colours = None if colours is None else colours[keep]
         kept = float(keep.mean())
     masks = vox.silhouette_masks() if estimator.settings.silhouette > 0 else []
     view, why = silhouette_view(masks, vox.cameras, calibration, estimator.settings)
-    return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view, keypoints=keypoints),
-                      kept, why)
+    return PosedFrame(estimator.update(centres, surface, ids, positions, only=only, view=view, keypoints=keypoints,
+                                       colours=colours), kept, why)

@@ -12,7 +12,9 @@ Per person: the track id, stature (and the tops it was read from), frames posed,
 last track position and smoothed velocity, the state estimate, the random generator's
 state, the particle sets (SHBM-APF: one per model, with their sizes; APF: one) and,
 with DDM, the limb switch (which units are on, their last check and the scouts of the
-lost ones).
+lost ones); with the behaviour method once it took over, its tracker (the blobs learnt,
+the particles with their velocities, clusters and VLMM states, the fits' history) and
+the frames SHBM-APF still poses after a failure.
 """
 from __future__ import annotations
 
@@ -71,10 +73,61 @@ def estimator_state(est: PoseEstimator) -> dict[str, np.ndarray]:
                                "scouts": sorted(sw.scouts)}
             for u, s in sw.scouts.items():
                 arrays[f"p{tid}.scout.{u}"] = np.asarray(s, dtype=np.float64)
+        if p.tracker is not None:
+            entry["behaviour"] = {**_tracker_state(p.tracker, f"p{tid}.b.", arrays), "handback": int(p.handback)}
         people.append(entry)
     meta = {"format": FORMAT, "settings": _settings_key(est.settings), "people": people}
     arrays["meta"] = json_entry(meta)
     return arrays
+
+
+_BLOB_ARRAYS = ("local_mean", "local_var", "colour_mean", "colour_cov", "weight")
+
+
+def _tracker_state(tracker, prefix: str, arrays: dict) -> dict:
+    f, blobs = tracker.filter, tracker.blobs
+    for name in _BLOB_ARRAYS:
+        arrays[prefix + name] = np.asarray(getattr(blobs, name), dtype=np.float64)
+    arrays[prefix + "states"] = f.states.copy()
+    arrays[prefix + "velocity"] = f.velocity.copy()
+    arrays[prefix + "cluster"] = f.cluster.astype(np.int64)
+    arrays[prefix + "estimate"] = np.asarray(f.estimate, dtype=np.float64)
+    if tracker.last_position is not None:
+        arrays[prefix + "last_position"] = np.asarray(tracker.last_position, dtype=np.float64)
+    return {"vlmm": [list(map(int, q)) for q in f.vlmm_state], "fits": [float(v) for v in tracker.fits],
+            "recoveries": int(tracker.recoveries)}
+
+
+def _restore_tracker(p: PersonPose, entry: dict, prefix: str, arrays) -> None:
+    """``p``'s behaviour tracker as :func:`_tracker_state` saved it."""
+    from app.behaviour.blobs import SEG_OF_BLOB, BlobModel
+
+    t = p.behaviour_tracker()
+    model = t.model
+    B = len(SEG_OF_BLOB)
+    shapes = {"local_mean": (B, 3), "local_var": (B, 3), "colour_mean": (B, 3), "colour_cov": (B, 3, 3), "weight": (B,)}
+    blobs = {}
+    for name, shape in shapes.items():
+        a = np.asarray(arrays.get(prefix + name, np.zeros(0)))
+        if a.dtype != np.float64 or a.shape != shape or not np.isfinite(a).all():
+            raise SnapshotError(f"pose snapshot: {prefix}{name} is not a finite {shape} array")
+        blobs[name] = a.copy()
+    t.blobs = BlobModel(p.height, SEG_OF_BLOB.copy(), **blobs)
+    f = t.filter
+    f.states = _particles(arrays, prefix + "states", f.n)
+    f.velocity = np.asarray(arrays.get(prefix + "velocity", np.zeros(0)), dtype=np.float64).copy()
+    cluster = np.asarray(arrays.get(prefix + "cluster", np.zeros(0)))
+    vlmm = [tuple(int(k) for k in q) for q in entry["vlmm"]]
+    if f.velocity.shape != (f.n, f.d) or cluster.dtype != np.int64 or cluster.shape != (f.n,) \
+            or len(vlmm) != f.n or cluster.min() < 0 or cluster.max() >= model.clusters.k \
+            or any(q not in model.vlmm.contexts for q in vlmm):
+        raise SnapshotError("pose snapshot: the behaviour tracker's particles do not fit its model")
+    f.cluster, f.vlmm_state = cluster.copy(), vlmm
+    f.estimate = _vector(arrays, prefix + "estimate", N_DOF)
+    t.last_position = _vector(arrays, prefix + "last_position", 3)
+    t.fits = [float(v) for v in entry["fits"]]
+    t.recoveries = int(entry["recoveries"])
+    p.tracker, p.handback = t, int(entry["handback"])
 
 
 def _particles(arrays, key: str, rows: int | None = None) -> np.ndarray:
@@ -145,6 +198,8 @@ def restore_estimator(settings: PoseSettings, arrays) -> PoseEstimator:
                     p.switch.active = {u: bool(v) for u, v in sw["active"].items()}
                     p.switch.last = {u: (float(a), float(b)) for u, (a, b) in sw["last"].items()}
                     p.switch.scouts = {u: _particles(arrays, f"p{tid}.scout.{u}") for u in sw["scouts"]}
+                if entry.get("behaviour") is not None:
+                    _restore_tracker(p, entry["behaviour"], f"p{tid}.b.", arrays)
             est.people[tid] = p
     except SnapshotError:
         raise
