@@ -69,9 +69,12 @@ def add_arguments(p) -> None:
     p.add_argument("--speed", action="store_true",
                    help="reconstruction: only issue 8's speed rows (segmentation + reconstruction + colour per frame "
                         "on one core for today's method, learnt occluders and the fused method) at the first voxel size")
-    p.add_argument("--pose-methods", default="apf,shbm,ddm", help="pose: methods (apf, shbm, ddm, shbm+ddm)")
+    p.add_argument("--pose-methods", default="apf,shbm,ddm", help="pose: methods (apf, shbm, ddm, shbm+ddm, behaviour)")
     p.add_argument("--densities", default="1,2,3", help="pose: model density factors (Eq. 6.26, default 1,2,3)")
-    p.add_argument("--pose-scenes", default="gesture1,walk1", help="pose: simulated scenes (default gesture1,walk1)")
+    p.add_argument("--pose-scenes", default="gesture1,walk1",
+                   help="pose: simulated scenes, built-in or random:SEED (default gesture1,walk1)")
+    p.add_argument("--pose-step", type=int, default=1,
+                   help="pose: every STEP-th frame of the scenes (the motion STEP times as fast; default 1)")
     p.add_argument("--voxels", default="true", choices=("true", "hull", "mog2"),
                    help="pose: voxels of the true bodies, the visual hull of the true silhouettes, or of the "
                         "segmentation's MOG2 masks (the pipeline's reconstruction; with --tolerance)")
@@ -254,7 +257,7 @@ def _pose(args, out: Path) -> dict:
     rows = pose.bench_pose(scenes=tuple(args.pose_scenes.split(",")), frames=frames, voxel_size=voxel,
                            densities=densities, methods=tuple(args.pose_methods.split(",")), source=args.voxels,
                            tolerance=args.tolerance, settings=settings, seeds=tuple(range(args.pose_seeds)),
-                           surface=args.pose_surface)
+                           surface=args.pose_surface, step=args.pose_step)
     return {"frames": frames, "voxel_size": voxel, "rows": rows}
 
 
