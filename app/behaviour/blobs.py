@@ -121,43 +121,103 @@ def learn_blobs(height: float, state, centres, colours) -> BlobModel:
     return BlobModel(float(height), SEG_OF_BLOB.copy(), lm, lv, cm, cc, w / w.sum())
 
 
-def _loglik(P, mean, cov, weight) -> tuple[np.ndarray, float]:
-    """Per blob log N(p | blob) (N, B) and the voxels' log-likelihood under the mixture."""
-    B = len(mean)
-    L = np.empty((len(P), B))
+@njit(cache=True, nogil=True)
+def _assign(P, mean, inv, owner):
+    """Each voxel to the blob of least Mahalanobis distance (§6.3)."""
+    N, B = P.shape[0], mean.shape[0]
+    d = np.empty(6)
+    for n in range(N):
+        best, arg = np.inf, 0
+        for b in range(B):
+            for i in range(6):
+                d[i] = P[n, i] - mean[b, i]
+            q = 0.0
+            for i in range(6):
+                row = 0.0
+                for j in range(6):
+                    row += inv[b, i, j] * d[j]
+                q += d[i] * row
+            if q < best:
+                best, arg = q, b
+        owner[n] = arg
+
+
+@njit(cache=True, nogil=True)
+def _moments(P, owner, B, min_voxels, var_floor, mean, cov, count):
+    """Each blob's mean and covariance (plus the floor) from its voxels, where it has at
+    least ``min_voxels`` (the others keep theirs); ``count`` the voxels of each."""
+    N = P.shape[0]
+    s1 = np.zeros((B, 6))
+    s2 = np.zeros((B, 6, 6))
+    count[:] = 0
+    for n in range(N):
+        b = owner[n]
+        count[b] += 1
+        for i in range(6):
+            s1[b, i] += P[n, i]
+            for j in range(6):
+                s2[b, i, j] += P[n, i] * P[n, j]
     for b in range(B):
-        ch = np.linalg.cholesky(cov[b])
-        z = np.linalg.solve(ch, (P - mean[b]).T)
-        L[:, b] = -0.5 * np.sum(z * z, axis=0) - np.sum(np.log(np.diag(ch))) - 3.0 * math.log(2 * math.pi)
-    mix = L + np.log(np.maximum(weight, 1e-12))
-    m = mix.max(axis=1, keepdims=True)
-    return L, float(np.sum(m[:, 0] + np.log(np.exp(mix - m).sum(axis=1))))
+        c = count[b]
+        if c < min_voxels:
+            continue
+        for i in range(6):
+            mean[b, i] = s1[b, i] / c
+        for i in range(6):
+            for j in range(6):   # np.cov's unbiased estimate
+                cov[b, i, j] = (s2[b, i, j] - c * mean[b, i] * mean[b, j]) / (c - 1)
+            cov[b, i, i] += var_floor[i]
+
+
+@njit(cache=True, nogil=True)
+def _mixture_loglik(P, mean, inv, log_norm):
+    """The voxels' log-likelihood under the mixture (``log_norm``: each blob's log weight
+    less half its log-determinant and 3 ln 2 pi)."""
+    N, B = P.shape[0], mean.shape[0]
+    d = np.empty(6)
+    L = np.empty(B)
+    total = 0.0
+    for n in range(N):
+        top = -np.inf
+        for b in range(B):
+            for i in range(6):
+                d[i] = P[n, i] - mean[b, i]
+            q = 0.0
+            for i in range(6):
+                row = 0.0
+                for j in range(6):
+                    row += inv[b, i, j] * d[j]
+                q += d[i] * row
+            L[b] = log_norm[b] - 0.5 * q
+            if L[b] > top:
+                top = L[b]
+        acc = 0.0
+        for b in range(B):
+            acc += math.exp(L[b] - top)
+        total += top + math.log(acc)
+    return total
 
 
 def fit_blobs(model: BlobModel, starts, centres, colours, iterations: int = 6) -> FittedBlobs:
     """The blobs fitted to the voxels by the Mahalanobis k-means of §6.3 from the blobs of
     each state of ``starts``; the fit of the highest log-likelihood of the voxels."""
-    P = _points(centres, colours)
+    P = np.ascontiguousarray(_points(centres, colours))
+    B = len(model.segment)
+    owner = np.zeros(len(P), np.int64)
+    count = np.zeros(B, np.int64)
     best = None
     for state in np.atleast_2d(starts):
         mean, cov = model.world(state)
         weight = model.weight.copy()
         for _ in range(iterations):
-            inv = np.linalg.inv(cov)
-            D = P[:, None, :] - mean[None]                                   # (N, B, 6)
-            maha = np.einsum("nbi,bij,nbj->nb", D, inv, D)
-            owner = np.argmin(maha, axis=1)
-            for b in range(len(mean)):
-                mine = owner == b
-                n = int(mine.sum())
-                weight[b] = max(n, 1)
-                if n >= MIN_VOXELS:
-                    mean[b] = P[mine].mean(axis=0)
-                    cov[b] = np.cov(P[mine].T) + np.diag(VAR_FLOOR)
-            weight = weight / weight.sum()
-        _, ll = _loglik(P, mean, cov, weight)
+            _assign(P, mean, np.linalg.inv(cov), owner)
+            _moments(P, owner, B, MIN_VOXELS, VAR_FLOOR, mean, cov, count)
+            weight = np.maximum(count, 1) / np.maximum(count, 1).sum()
+        sign, logdet = np.linalg.slogdet(cov)
+        ll = _mixture_loglik(P, mean, np.linalg.inv(cov),
+                             np.log(np.maximum(weight, 1e-12)) - 0.5 * logdet - 3.0 * math.log(2 * math.pi))
         if best is None or ll > best.loglik:
-            best = FittedBlobs(weight, mean.copy(), cov.copy(), ll)
+            best = FittedBlobs(weight, mean.copy(), cov.copy(), float(ll))
     return best
 
 

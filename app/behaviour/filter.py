@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.behaviour.clusters import log_gauss
+from app.behaviour.clusters import LOG_2PI
 from app.behaviour.model import FEATURE_DOFS, BehaviourModel
 from app.pose.model import LIMITS_HI, LIMITS_LO, N_DOF
 
@@ -52,6 +52,10 @@ class BehaviourFilter:
         self.sub = model.subspace
         vals, vecs = np.linalg.eigh(c.covs)
         self.sqrt_cov = vecs * np.sqrt(np.maximum(vals, 0.0))[:, None, :]      # V sqrt(D): V sqrt(D) V^T z ~ same law
+        chol = np.linalg.cholesky(c.covs)
+        self.whiten = np.linalg.inv(chol)             # L^-1: |L^-1 (x - mu)|^2 the Mahalanobis distance
+        self.log_norm = -np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1) - 0.5 * (2 * self.d) * LOG_2PI
+        self._tau: dict[tuple, tuple] = {}            # (q, k) -> tau(q, k), memoised
         self.states = np.zeros((self.n, N_DOF))
         self.velocity = np.zeros((self.n, self.d))
         self.vlmm_state: list[tuple] = [()] * self.n
@@ -102,7 +106,7 @@ class BehaviourFilter:
         groups: dict[tuple, list[int]] = {}
         for p, q in enumerate(self.vlmm_state):
             groups.setdefault(q, []).append(p)
-        logdens_cache: dict[int, np.ndarray] = {}
+        logdens: dict[int, np.ndarray] = {}
         for q, members in groups.items():
             members = np.asarray(members)
             gamma = vlmm.gamma(q)
@@ -111,9 +115,10 @@ class BehaviourFilter:
                 cand = np.arange(c.k)
             lp = np.empty((len(members), len(cand)))
             for j, k in enumerate(cand):
-                if k not in logdens_cache:
-                    logdens_cache[k] = log_gauss(X, c.means[k], c.covs[k])
-                lp[:, j] = logdens_cache[k][members] + np.log(gamma[k])
+                if k not in logdens:   # log N(X | mu_k, Sigma_k) of every particle, once a frame
+                    z = (X - c.means[k]) @ self.whiten[k].T
+                    logdens[k] = self.log_norm[k] - 0.5 * np.einsum("ij,ij->i", z, z)
+                lp[:, j] = logdens[k][members] + np.log(gamma[k])
             lp -= lp.max(axis=1, keepdims=True)
             pr = np.exp(lp)
             pr /= pr.sum(axis=1, keepdims=True)
@@ -121,7 +126,10 @@ class BehaviourFilter:
             pick = np.minimum((pr.cumsum(axis=1) < u[:, None]).sum(axis=1), len(cand) - 1)
             new_cluster[members] = cand[pick]
         z = rng.standard_normal((self.n, 2 * self.d))
-        noise = np.einsum("nij,nj->ni", self.sqrt_cov[new_cluster], z)
+        noise = np.empty_like(z)
+        for k in np.unique(new_cluster):
+            mine = new_cluster == k
+            noise[mine] = z[mine] @ self.sqrt_cov[k].T
         angles = self.states[:, FEATURE_DOFS]
         x = X[:, :self.d]
         off_axes = angles - self.sub.mean - x @ self.sub.basis.T
@@ -141,8 +149,15 @@ class BehaviourFilter:
         # a joint limit stops the motion
         self.velocity = v + self.sub.reduce_change(clipped[:, FEATURE_DOFS] - states[:, FEATURE_DOFS])
         self.states = clipped
-        self.vlmm_state = [vlmm.next_state(q, int(k)) for q, k in zip(self.vlmm_state, new_cluster)]
+        self.vlmm_state = [self._next(q, int(k)) for q, k in zip(self.vlmm_state, new_cluster)]
         self.cluster = new_cluster
+
+    def _next(self, q: tuple, k: int) -> tuple:
+        """The VLMM's ``tau(q, k)``, memoised (a few dozen distinct pairs a frame)."""
+        out = self._tau.get((q, k))
+        if out is None:
+            out = self._tau[(q, k)] = self.model.vlmm.next_state(q, k)
+        return out
 
     def update(self, log_weights: np.ndarray) -> np.ndarray:
         """Weigh, take the best particle as the estimate, resample (SIR, systematic)."""
