@@ -121,22 +121,25 @@ def learn_blobs(height: float, state, centres, colours) -> BlobModel:
     return BlobModel(float(height), SEG_OF_BLOB.copy(), lm, lv, cm, cc, w / w.sum())
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _mahalanobis(P, n, mean, inv, b):
+    """(p_n - mu_b)^T inv_b (p_n - mu_b) of 6-d points and blobs."""
+    q = 0.0
+    for i in range(6):
+        row = 0.0
+        for j in range(6):
+            row += inv[b, i, j] * (P[n, j] - mean[b, j])
+        q += (P[n, i] - mean[b, i]) * row
+    return q
+
+
 @njit(cache=True, nogil=True)
 def _assign(P, mean, inv, owner):
     """Each voxel to the blob of least Mahalanobis distance (§6.3)."""
-    N, B = P.shape[0], mean.shape[0]
-    d = np.empty(6)
-    for n in range(N):
+    for n in range(P.shape[0]):
         best, arg = np.inf, 0
-        for b in range(B):
-            for i in range(6):
-                d[i] = P[n, i] - mean[b, i]
-            q = 0.0
-            for i in range(6):
-                row = 0.0
-                for j in range(6):
-                    row += inv[b, i, j] * d[j]
-                q += d[i] * row
+        for b in range(mean.shape[0]):
+            q = _mahalanobis(P, n, mean, inv, b)
             if q < best:
                 best, arg = q, b
         owner[n] = arg
@@ -174,21 +177,12 @@ def _mixture_loglik(P, mean, inv, log_norm):
     """The voxels' log-likelihood under the mixture (``log_norm``: each blob's log weight
     less half its log-determinant and 3 ln 2 pi)."""
     N, B = P.shape[0], mean.shape[0]
-    d = np.empty(6)
     L = np.empty(B)
     total = 0.0
     for n in range(N):
         top = -np.inf
         for b in range(B):
-            for i in range(6):
-                d[i] = P[n, i] - mean[b, i]
-            q = 0.0
-            for i in range(6):
-                row = 0.0
-                for j in range(6):
-                    row += inv[b, i, j] * d[j]
-                q += d[i] * row
-            L[b] = log_norm[b] - 0.5 * q
+            L[b] = log_norm[b] - 0.5 * _mahalanobis(P, n, mean, inv, b)
             if L[b] > top:
                 top = L[b]
         acc = 0.0
