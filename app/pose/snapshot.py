@@ -105,9 +105,8 @@ def _restore_tracker(p: PersonPose, entry: dict, prefix: str, arrays) -> None:
     t = p.behaviour_tracker()
     model = t.model
     B = len(SEG_OF_BLOB)
-    shapes = {"local_mean": (B, 3), "local_var": (B, 3), "colour_mean": (B, 3), "colour_cov": (B, 3, 3), "weight": (B,)}
     blobs = {}
-    for name, shape in shapes.items():
+    for name, shape in zip(_BLOB_ARRAYS, ((B, 3), (B, 3), (B, 3), (B, 3, 3), (B,))):
         a = np.asarray(arrays.get(prefix + name, np.zeros(0)))
         if a.dtype != np.float64 or a.shape != shape or not np.isfinite(a).all():
             raise SnapshotError(f"pose snapshot: {prefix}{name} is not a finite {shape} array")
@@ -124,6 +123,8 @@ def _restore_tracker(p: PersonPose, entry: dict, prefix: str, arrays) -> None:
         raise SnapshotError("pose snapshot: the behaviour tracker's particles do not fit its model")
     f.cluster, f.vlmm_state = cluster.copy(), vlmm
     f.estimate = _vector(arrays, prefix + "estimate", N_DOF)
+    if f.estimate is None:
+        raise SnapshotError(f"pose snapshot: {prefix}estimate is missing")
     t.last_position = _vector(arrays, prefix + "last_position", 3)
     t.fits = [float(v) for v in entry["fits"]]
     t.recoveries = int(entry["recoveries"])
