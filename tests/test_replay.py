@@ -142,11 +142,23 @@ def _stop(proc):
             proc.wait()
 
 
-def _shot(chromium, url, png, profile):
-    """An 800x600 screenshot (RGB) of the replay page once it has loaded the run, and the
+#: The replay page's frame control (once its commands have arrived) and whether the
+#: animation plays.
+STOPPED_AT = """(() => {
+    if (typeof viewer === "undefined" || !viewer.gui) { return null; }
+    const c = viewer.gui.__controllers.find((c) => c.property === "frame");
+    return c ? {frame: c.object.frame, playing: viewer.animator.playing} : null;
+})()"""
+
+
+def _shot(chromium, url, png, profile, frame):
+    """An 800x600 screenshot (RGB) of the replay page once it has loaded the run and
+    stopped at ``frame`` (the page's frame control set, the animation paused), and the
     page's DOM. Through the DevTools protocol, as the live viewer's test (the command
     line's --screenshot with a virtual-time budget now and then never returned on a
-    loaded machine: three tries of 60 s each failed in a CI run)."""
+    loaded machine: three tries of 60 s each failed in a CI run; a fixed wait after the
+    replay loaded now and then caught the animation still playing, before the frame
+    control's commands had arrived: a CI run showed another frame's skeleton)."""
     import cv2
 
     from tests.browser import Page, scene_state
@@ -164,7 +176,15 @@ def _shot(chromium, url, png, profile):
                 break
             time.sleep(0.3)
         assert state and state["replay_frames"] > 0, f"the replay never loaded in the page: {state}"
-        time.sleep(2.0)   # the chosen frame set and drawn (meshcat draws on the next animation frames)
+        stopped = None
+        while time.monotonic() < deadline:
+            stopped = page.evaluate(STOPPED_AT)
+            if stopped and not stopped["playing"] and stopped["frame"] == frame:
+                break
+            time.sleep(0.3)
+        assert stopped and not stopped["playing"] and stopped["frame"] == frame, \
+            f"the replay did not stop at frame {frame}: {stopped}"
+        time.sleep(1.0)   # the chosen frame drawn (meshcat draws on the next animation frames)
         dom = page.evaluate("document.documentElement.outerHTML")
         page.screenshot(png)
     finally:
@@ -186,7 +206,8 @@ def test_replay_in_headless_chromium_shows_the_chosen_frame(run_results, tmp_pat
     for frame in (5, 60):
         proc, url = _view(run_results, "--frame", frame, "--images", "cam0", "--image-width", 160)
         try:
-            shots[frame], page_dom = _shot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / f"profile{frame}")
+            shots[frame], page_dom = _shot(chromium, url, tmp_path / f"frame{frame}.png", tmp_path / f"profile{frame}",
+                                           frame)
             if frame == 5:
                 dom = page_dom
         finally:
