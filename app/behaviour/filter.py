@@ -85,13 +85,22 @@ class BehaviourFilter:
         c, rng = self.model.clusters, self.rng
         who = rng.choice(self.n, m, replace=False)
         k = np.minimum(np.searchsorted(np.cumsum(c.weights) / c.weights.sum(), rng.random(m)), c.k - 1)
-        drawn = c.means[k] + np.einsum("nij,nj->ni", self.sqrt_cov[k], rng.standard_normal((m, 2 * self.d)))
+        drawn = c.means[k] + self._cluster_noise(k, rng.standard_normal((m, 2 * self.d)))
         x, v = drawn[:, :self.d], drawn[:, self.d:]
         states = self.states[who].copy()
         states[:, FEATURE_DOFS] = self.sub.mean + x @ self.sub.basis.T
         self.states[who] = np.clip(states, LIMITS_LO, LIMITS_HI)
         self.velocity[who] = v
         self.cluster[who] = k
+
+    def _cluster_noise(self, clusters: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Standard normal draws ``z`` (n, 2D) made draws of the clusters' covariances (each
+        row by its cluster's square root, one matrix product per cluster)."""
+        noise = np.empty_like(z)
+        for k in np.unique(clusters):
+            mine = clusters == k
+            noise[mine] = z[mine] @ self.sqrt_cov[k].T
+        return noise
 
     def support(self) -> dict[int, float]:
         """Share of the particles in each cluster (the blob fit's starts, §6.3)."""
@@ -125,11 +134,7 @@ class BehaviourFilter:
             u = rng.random(len(members))
             pick = np.minimum((pr.cumsum(axis=1) < u[:, None]).sum(axis=1), len(cand) - 1)
             new_cluster[members] = cand[pick]
-        z = rng.standard_normal((self.n, 2 * self.d))
-        noise = np.empty_like(z)
-        for k in np.unique(new_cluster):
-            mine = new_cluster == k
-            noise[mine] = z[mine] @ self.sqrt_cov[k].T
+        noise = self._cluster_noise(new_cluster, rng.standard_normal((self.n, 2 * self.d)))
         angles = self.states[:, FEATURE_DOFS]
         x = X[:, :self.d]
         off_axes = angles - self.sub.mean - x @ self.sub.basis.T

@@ -45,7 +45,7 @@ class BehaviourTracker:
 
     def __init__(self, model: BehaviourModel, height: float, particles: int = 200, lam: float = 0.5,
                  support: float = 0.1, starts: int = 3, iterations: int = 4, lost: float = 3.0, rng=0,
-                 sharpness: float = 0.0, evaluation: str = "kl", temperature: float = 20.0, voxels: int = 300,
+                 evaluation: str = "kl", temperature: float = 20.0, voxels: int = 300,
                  survival: float = 0.5, layers: int = 1, refine: float = 0.5):
         if evaluation not in EVALUATIONS:
             raise ValueError(f"evaluation {evaluation!r} is not one of {', '.join(EVALUATIONS)}")
@@ -57,7 +57,6 @@ class BehaviourTracker:
         self.fits: list[float] = []
         self.recoveries = 0
         self.lost_now = False     # the last step found the tracker lost
-        self.sharpness = float(sharpness)   # 0: w = 1 / D (the paper); > 0: w = exp(-sharpness D) (ours)
         self.last_position = None
         self.evaluation, self.temperature, self.voxels = evaluation, float(temperature), int(voxels)
         self.survival = float(survival)
@@ -98,7 +97,6 @@ class BehaviourTracker:
         ``score(states) -> log-likelihoods`` (the ``model`` evaluation: the caller's
         likelihood of the states, e.g. the thesis's voxel likelihood), its weights tempered
         to a survival rate of ``survival`` (Eq. 3.21 of the thesis)."""
-        centres, colours = self.coloured(centres, colours)
         shift = (0.0, 0.0)
         if position is not None and self.last_position is not None:
             shift = tuple(np.asarray(position, float)[:2] - self.last_position[:2])
@@ -118,16 +116,18 @@ class BehaviourTracker:
                 ll = np.asarray(score(f.states), float)
                 lw = annealing_exponent(ll, self.survival) * ll
         elif self.evaluation == "voxels":
+            centres, colours = self.coloured(centres, colours)
             idx = np.arange(len(centres))
             if len(idx) > self.voxels:
                 idx = self.filter.rng.choice(len(centres), self.voxels, replace=False)
             ll = voxel_logliks(self.blobs, self.filter.states, centres[idx], colours[idx])
             quality, lw = float(ll.max()), self.temperature * ll
         else:
+            centres, colours = self.coloured(centres, colours)
             fitted = fit_blobs(self.blobs, self._fit_starts(), centres, colours, self.iterations)
             quality = fitted.loglik / max(len(centres), 1)
             d = blob_divergences(self.blobs, fitted, self.filter.states)
-            lw = -self.sharpness * d if self.sharpness > 0 else -np.log(np.maximum(d, 1e-3))
+            lw = -np.log(np.maximum(d, 1e-3))   # w = 1 / D
         estimate = self.filter.update(lw)
         fits = np.asarray(self.fits)
         self.lost_now = len(fits) >= 5 and quality < fits.mean() - self.lost * max(fits.std(), 1e-6)

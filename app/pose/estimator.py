@@ -142,8 +142,9 @@ class PoseSettings:
             raise ValueError(f"low_legs {self.low_legs} must be in 0..1 (0: off)")
         if self.behaviour_recovery not in ("shbm", "prototypes"):
             raise ValueError(f"behaviour_recovery {self.behaviour_recovery!r} must be shbm or prototypes")
-        if self.behaviour_evaluation not in ("kl", "voxels", "model"):
-            raise ValueError(f"behaviour_evaluation {self.behaviour_evaluation!r} must be kl, voxels or model")
+        from app.behaviour.tracker import EVALUATIONS
+        if self.behaviour_evaluation not in EVALUATIONS:
+            raise ValueError(f"behaviour_evaluation {self.behaviour_evaluation!r} must be one of {', '.join(EVALUATIONS)}")
         if self.behaviour_particles < 1 or self.behaviour_start < 1 or not self.behaviour_lambda >= 0:
             raise ValueError("behaviour_particles and behaviour_start must be >= 1, behaviour_lambda >= 0")
         if self.gamma < 1 or self.gamma_budget < 0 or self.gamma_min < 1:
@@ -412,7 +413,8 @@ class PoseEstimator:
         ``keypoints``: ``{track id: PersonKeypoints}`` (:mod:`app.keypoints.fusion`) or None;
         ``colours``: the voxels' RGB (N, 3) (the behaviour method) or None."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-        colours = None if colours is None or len(colours) != len(centres) else np.asarray(colours)
+        colours = None if (colours is None or len(colours) != len(centres)
+                           or self.settings.method != "behaviour") else np.asarray(colours)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
         owner = assign_voxels(centres, positions, self.settings.reach)

@@ -95,7 +95,8 @@ def pose_frame(estimator, vox, ids: np.ndarray, positions: np.ndarray, params: d
     keep = pose_subset(vox.misses, centres, positions, mode=params["voxels"], cameras=len(vox.cameras),
                        low=float(params["tolerant_low"]), near=float(params["tolerant_near"]),
                        views=int(params["tolerant_views"]))
-    colours = vox.colours if vox.colours is not None and len(vox.colours) == len(centres) else None
+    colours = vox.colours if (estimator.settings.method == "behaviour" and vox.colours is not None
+                              and len(vox.colours) == len(centres)) else None   # only the blobs look at them
     kept = None
     if keep is not None:
         centres, surface = centres[keep], None   # the subset's own boundary (app.pose.observation)
