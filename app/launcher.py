@@ -480,8 +480,9 @@ class Launcher:
                 if isinstance(s.figures.get("stream_error"), str)]
 
     def _frames_passed(self) -> list[str]:
-        """Offline, frames the source sent on past a stage that was away too long (nothing
-        may be lost on a recording: the run is incomplete)."""
+        """Offline, frames the source sent on past a stage that was away too long, and
+        frames a restarted stage carried on without (the stage before it restarted with it:
+        nothing sent them again): nothing may be lost on a recording, the run is incomplete."""
         if not self.layout.run.recording:
             return []
         out = []
@@ -491,6 +492,10 @@ class Launcher:
                 if isinstance(n, int) and n > 0:
                     out.append(f"{worker}: {n} frames went on without it (away longer than the source "
                                f"waits, {name} said)")
+            n = s.figures.get("not_sent_again")
+            if isinstance(n, int) and n > 0:
+                out.append(f"{name}: {n} frames after its restored state were not sent again (a stage before "
+                           f"it restarted with it): carried on without them")
         return out
 
     @property

@@ -215,3 +215,28 @@ def test_a_restarted_live_grabber_carries_the_frame_numbers_on(tmp_path):
     assert frames == sorted(set(frames)) and 140 <= frames[-1] <= 149
     # live stages may drop frames to keep up (counted); what was written is what the recorder says
     assert len(frames) == s["stages"]["recorder"]["frames_out"] >= 75
+
+
+def test_frames_a_restarted_stage_carried_on_without_make_a_recording_run_incomplete(tmp_path):
+    """A stage restored from its state whose frames after it never came again (the stage
+    before it restarted with it: the pose worker killed and the tracker terminated within a
+    second on walk1 lost a frame) says so in its figures (``not_sent_again``); on a
+    recording the launcher then calls the run incomplete and says why, as for frames the
+    source sent on without a stage; live, frames may be lost."""
+    from types import SimpleNamespace
+
+    from app.config import load_layout
+    from app.launcher import Launcher
+
+    layout = load_layout()
+    layout.run.recording, layout.run.out = str(tmp_path / "rec"), str(tmp_path / "out")
+    launcher = Launcher(layout)
+    launcher.stats = {"pose": SimpleNamespace(figures={"not_sent_again": 2}),
+                      "tracking": SimpleNamespace(figures={"repeats_skipped": 3})}
+    assert not launcher.complete
+    assert launcher._frames_passed() == ["pose: 2 frames after its restored state were not sent again (a stage "
+                                         "before it restarted with it): carried on without them"]
+    layout.run.recording = None
+    live = Launcher(layout)
+    live.stats = launcher.stats
+    assert live._frames_passed() == []

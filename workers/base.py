@@ -635,6 +635,8 @@ class Worker(Restarts):
         figures["restarts"] = self.incarnation
         figures["resent"] = self.resent
         figures["repeats_skipped"] = self.repeats_skipped
+        if self.not_sent_again:
+            figures["not_sent_again"] = self.not_sent_again
         figures["rejected"] = self.rejections.figures()
         if any(w.skipped for w in self.windows.values()):   # live: jumped to the newest after standing still
             figures["frames_skipped"] = max(w.skipped for w in self.windows.values())

@@ -426,6 +426,7 @@ class Pose(Worker):
         if self.catching and not self.caught_up_frames and vox.frame > self.done + 1:
             self.log.warning("frames %d-%d after the pose snapshot were not sent again: carrying on with a gap",
                              self.done + 1, vox.frame - 1)
+            self.lost_after(self.done + 1, vox.frame - 1)
         if publish and self.catching:
             self.catching = False   # the caught-up frames are said when it publishes (Worker.publish)
         self.done = vox.frame

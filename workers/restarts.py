@@ -76,7 +76,15 @@ class Restarts:
         self._lose = int(lose[0]) if lose else None   # FAILPOINT_ENV
         self._killed_after_handle = False
         self.repeats_skipped = 0                 # inputs that arrived again (sent again after a restart)
+        self.not_sent_again = 0                  # frames after the restored state nobody sent again (lost_after)
         self.out_epoch: int | None = None        # a source: the epoch of the newest frame it put out
+
+    def lost_after(self, first: int, last: int) -> None:
+        """Frames ``first..last`` after this incarnation's restored state never came again
+        (a stage before it restarted with it: its outputs of them died with it), so the
+        stage carries on without them: counted (``not_sent_again`` in the figures; on a
+        recording the launcher reports the run incomplete)."""
+        self.not_sent_again += max(0, last - first + 1)
 
     # -- the stage's state ------------------------------------------------------------
     def extra_state(self) -> dict:

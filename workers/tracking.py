@@ -139,6 +139,7 @@ class Tracking(Worker):
                 gap = max(0.0, msg.t - t)
                 self.log.warning("frames %d-%d after the tracker's snapshot were not sent again: carrying on after a "
                                  "gap of %.2f s", frame + 1, msg.frame - 1, gap)
+                self.lost_after(frame + 1, msg.frame - 1)
                 if gap > self.RELOCATE_AFTER_S:
                     self.tracker.relocate(scene, self.tracker.p.refine_radius + self.WALK_SPEED * gap)
         out = self.tracker.update(scene)
