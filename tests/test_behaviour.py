@@ -242,7 +242,8 @@ def test_the_behaviour_tracker_recovers_after_a_corrupted_state(hull_clip):
     """At frame 16 the tracker's particles are all put on a wrong pose (both arms raised,
     a knee bent, the body turned by 1 rad: 20 cm off on average): it finds itself lost
     (§6.3) and is back within 10 frames by SHBM-APF's search (``behaviour_recovery:
-    shbm``; the paper's motion prototypes alone do not bring it back: the issue's note)."""
+    shbm``; the paper's motion prototypes alone bring it back slowly or not at all:
+    docs/behaviour.md)."""
     from app.pose.model import DOF
     from app.pose.offline import clip_errors, run_clip
 
