@@ -178,9 +178,11 @@ def test_scores_on_a_short_scene_of_three_people():
 
 def test_a_person_who_briefly_fails_the_person_test_keeps_their_id():
     """A person crouches for 24 frames (the blob drops to 1.0 m: the classifier says no
-    person, the track ends after ``no_person_frames``) and stands up again: with
-    re-identification the new track takes the ended track's id; without (``reid_frames
-    = 0``, the thesis's track life) the person comes back under a new id."""
+    person). The track earned patience while its share was a person (``no_person_credit``)
+    and follows them through the crouch. With the thesis's track life
+    (``no_person_credit = 0``) the track ends after ``no_person_frames`` and
+    re-identification gives the new track the ended track's id; without that either
+    (``reid_frames = 0``) the person comes back under a new id."""
     frames, truth = [], {}
     for f in range(80):
         x = 1.5 + 1.5 * f / 79
@@ -189,12 +191,16 @@ def test_a_person_who_briefly_fails_the_person_test_keeps_their_id():
                                    (_cylinder(1.0, 3.4), GREEN, GREY)]))
         truth[f] = {1: (x, 2.0), 2: (1.0, 3.4)}
     res = run(frames)
-    ids = {int(i) for f in range(5, 80) for i in res[f][0]}
-    assert len(ids) == 2, ids                       # the crouching person kept their id
-    assert any(len(res[f][0]) == 1 for f in range(20, 50))   # ... though their track was dropped
+    assert all(len(res[f][0]) == 2 for f in range(5, 80))   # never dropped
     s = score_tracking(truth_of(truth), res)
+    assert s.mismatches == 0 and s.mota >= 0.95 and s.idf1 >= 0.95, s.summary()
+    thesis = run(frames, no_person_credit=0.0)
+    ids = {int(i) for f in range(5, 80) for i in thesis[f][0]}
+    assert len(ids) == 2, ids                       # the crouching person kept their id
+    assert any(len(thesis[f][0]) == 1 for f in range(20, 50))   # ... though their track was dropped
+    s = score_tracking(truth_of(truth), thesis)
     assert s.mismatches == 0 and s.idf1 >= 0.85, s.summary()
-    plain = run(frames, reid_frames=0)
+    plain = run(frames, no_person_credit=0.0, reid_frames=0)
     assert len({int(i) for f in range(5, 80) for i in plain[f][0]}) == 3
 
 

@@ -40,12 +40,16 @@ class Tracking(Worker):
         "confirm_sure_frames": 2,  # a sure person in an empty room is a track after this many frames; 5: never sooner
         "same_place": 0.2,         # m: a younger track this close to an older one is a duplicate, however
                                    # dressed (two bodies do not fit; 0: off)
+        "no_person_credit": 1.0,   # frames of patience a track earns by each frame it was a person, against
+        "no_person_cap": 100,      # the classifier's no-person verdicts (crouching, sitting), at most this many
+                                   # (0: the thesis, a track ends after 18 no-person frames)
         "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
                                    # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
     RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100), "same_place": (0.0, 2.0),
+              "no_person_credit": (0.0, 100.0), "no_person_cap": (0, 100000),
               "snapshot_frames": (1, 1000)}
     WALK_SPEED = 1.5         # m/s: how far a person may have gone in a gap the tracker did not see
     RELOCATE_AFTER_S = 0.2   # a gap shorter than this needs no wider search
@@ -59,7 +63,9 @@ class Tracking(Worker):
             params = TrackerParams.from_dict({k: p[k] for k in ("filter", "samples", "particles", "seed")}
                                              | {"candidate_min_z": float(p["candidate_min_z"]),
                                                 "confirm_sure_frames": int(p["confirm_sure_frames"]),
-                                                "same_place": float(p["same_place"])})
+                                                "same_place": float(p["same_place"]),
+                                                "no_person_credit": float(p["no_person_credit"]),
+                                                "no_person_cap": int(p["no_person_cap"])})
         except (TypeError, ValueError) as exc:
             raise InputError(f"tracking: {exc}") from None
         name = p["classifier"]

@@ -65,7 +65,7 @@ def tracker_state(tracker: MultiTracker, dims=None) -> dict[str, np.ndarray]:
     for k, t in enumerate(tracker.tracks):
         g = t.target
         entry = {"id": int(t.id), "age": int(t.age), "low_support": int(t.low_support),
-                 "no_person": int(t.no_person), "close": int(t.close)}
+                 "no_person": int(t.no_person), "close": int(t.close), "person": int(t.person)}
         arrays[f"t{k}.x"] = np.asarray(g.x, dtype=np.float64)
         if isinstance(g, SparseTarget):
             arrays[f"t{k}.samples"] = np.asarray(g.samples).astype(np.uint16).reshape(-1, 3)   # grid indices
@@ -180,7 +180,8 @@ def restore_tracker(params: TrackerParams, classifier, arrays, dims=None) -> Mul
             t = _Track(int(entry["id"]), _target(tracker, arrays, k, entry, dims))
             t.age, t.low_support, t.no_person, t.close = (int(entry[n]) for n in
                                                           ("age", "low_support", "no_person", "close"))
-            if not 0 < t.id < tracker.next_id or min(t.age, t.low_support, t.no_person, t.close) < 0:
+            t.person = int(entry.get("person", 0))   # snapshots before the patience rule have none
+            if not 0 < t.id < tracker.next_id or min(t.age, t.low_support, t.no_person, t.close, t.person) < 0:
                 raise SnapshotError(f"tracker snapshot: track {k} has a malformed id or counters")
             tracker.tracks.append(t)
         if len({t.id for t in tracker.tracks}) != len(tracker.tracks):

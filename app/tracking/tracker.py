@@ -17,7 +17,12 @@ Each frame (:meth:`MultiTracker.update`):
    bodies do not fit, however dressed); a target whose support (the weight of
    the voxels within ``s_x`` of it, xy) stays under ``min_support_kg`` for ``lost_frames``
    frames has lost its person (the thesis's low efficiency); a target whose component
-   the classifier calls no-person for ``no_person_frames`` frames is lost;
+   the classifier calls no-person for ``no_person_frames`` frames is lost; beyond the
+   thesis (``no_person_credit``; 0 is the thesis), a track earns patience by the frames
+   its share was a person: ``no_person_credit`` frames per such frame, at most
+   ``no_person_cap`` more, so a person who crouches or sits down for seconds (a blob
+   the classifier was not grown on) keeps the track that followed them standing, while
+   a piece of the hull that passed the person test for a moment does not;
 3. creation (§4.2.3): the voxels of each component the classifier calls a person that
    no target claims (farther than ``claim_radius`` from every target, xy) are a
    candidate when the classifier also calls *them* a person (so a person merged into
@@ -100,6 +105,8 @@ class TrackerParams:
     min_support_kg: float = 10.0
     lost_frames: int = 8
     no_person_frames: int = 18
+    no_person_credit: float = 1.0   # frames of patience earned by each frame the share was a person (0: the thesis)
+    no_person_cap: int = 100       # ... at most this many frames more (4 s at 25 fps)
     share_frames: int = 12         # a younger track whose share is no person this long is a duplicate
     reid_frames: int = 50          # a new track this soon after a track ended near it takes its id (0: never)
     reid_distance: float = 0.75    # ... within this distance (m, xy) of where it ended
@@ -123,12 +130,13 @@ class TrackerParams:
 
 
 class _Track:
-    __slots__ = ("id", "target", "age", "low_support", "no_person", "close")
+    __slots__ = ("id", "target", "age", "low_support", "no_person", "close", "person")
 
     def __init__(self, tid, target):
         self.id, self.target = tid, target
         self.age = 0
         self.low_support = self.no_person = self.close = 0
+        self.person = 0   # frames its share was a person (the patience it earned, ``no_person_credit``)
 
 
 class MultiTracker:
@@ -325,11 +333,12 @@ class MultiTracker:
             t.age += 1
             t.low_support = t.low_support + 1 if support[i] < p.min_support_kg else 0
             t.no_person = 0 if person[i] else t.no_person + 1
+            t.person += bool(person[i])
             dup = any(self.duplicate_of(o.target, t.target) for o in keep if o.id < t.id)
             t.close = t.close + 1 if dup else 0
             # a failing share is the younger track's fault while an older track holds the component
             shared_fail = t.no_person >= p.share_frames and hosts[i] >= 0 and oldest[hosts[i]] != t.id
-            alone_fail = t.no_person >= p.no_person_frames
+            alone_fail = t.no_person >= p.no_person_frames + min(int(p.no_person_credit * t.person), p.no_person_cap)
             if t.low_support >= p.lost_frames or alone_fail or shared_fail or t.close >= p.duplicate_frames:
                 self.deleted += 1
                 why = ("lost" if t.low_support >= p.lost_frames else "duplicate" if t.close >= p.duplicate_frames
