@@ -114,9 +114,10 @@ def _compute(recording: Path, voxel_size: float, frames, progress, carving: dict
                  "voxel_size": float(voxel_size)}
 
 
-def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict | None = None):
+def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict | None = None, calibration=None):
     """Run CCA (+ person test) and the multi-tracker over voxel frames, as the workers
-    do; ``{frame: (ids, positions)}``. ``timings`` (optional) gets the per-frame ms of
+    do; ``{frame: (ids, positions)}``. With the run's ``calibration``, new tracks pass
+    the ghost test as in the tracking worker (``tracking.ghosts``, its default). ``timings`` (optional) gets the per-frame ms of
     ``cca`` and ``tracking`` (wall clock) and ``cca_cpu`` and ``tracking_cpu`` (this
     thread's CPU time: what one core spends, whatever else shares the machine)."""
     import time
@@ -127,7 +128,12 @@ def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict
 
     cca = ComponentAnalysis(grid["dims"], grid["origin"], grid["voxel_size"], classifier)
     occupancy = OccupancyIndex(grid["dims"])
-    tracker = MultiTracker(params, classifier)
+    ghost_test = None
+    if calibration is not None:
+        from app.tracking.ghosts import GhostTest
+
+        ghost_test = GhostTest(calibration.cameras)
+    tracker = MultiTracker(params, classifier, ghost_test)
     out = {}
     for v in frames:
         c0, t0 = time.thread_time(), time.perf_counter()
