@@ -98,7 +98,7 @@ class TrackerParams:
     sure_probability: float = 0.97  # the classifier's person probability of a sure sighting in an empty room
     new_min_z: float = 0.6         # no new track whose candidate's centroid is lower (m; -inf: any)
     candidate_min_z: float = 0.9   # a new component's candidate placed (xy) by its voxels this high (m; -inf: all)
-    duplicate_distance: float = 0.45   # two targets closer than this (xy) ...
+    duplicate_distance: float = 0.55   # two targets closer than this (xy) ...
     duplicate_frames: int = 6      # ... for this many frames: the younger is a duplicate
     duplicate_similarity: float = 0.5   # colour filters: ... and dressed alike (Bhattacharyya >= this; 0: the thesis)
     same_place: float = 0.2        # ... or closer than this (xy), however dressed: two bodies do not fit (0: off)
