@@ -91,8 +91,10 @@ def _lilliefors(w: np.ndarray) -> float:
     from scipy.stats import norm
     w = np.sort(w)
     n = len(w)
+    if n < 8:   # (before the deviation: numpy warns of one taken over fewer than two values)
+        return math.inf
     sd = w.std(ddof=1)
-    if n < 8 or sd <= 0:
+    if sd <= 0:
         return math.inf
     cdf = norm.cdf((w - w.mean()) / sd)
     i = np.arange(1, n + 1)
