@@ -60,6 +60,8 @@ EOS_CONFIRM_S = 10.0     # an end of stream counts when its sender leaves the bu
                          # machine may take seconds to carry the liveliness change of a worker on another host)
 LOSSLESS_DEPTH = 256     # inbox depth per key offline (flow control keeps it far below)
 MAX_KEYS = 64            # distinct keys an inbox holds queues for
+RECENT_FRAMES = 50       # frames behind a worker's running figures (``extra_figures``): bounded, so that a
+                         # worker's memory does not grow with the days a room runs
 SUBSCRIBER_WAIT_S = 5.0  # offline: a new publisher waits at most this long for the bus to route its key to a consumer
 
 EXIT_ENDED = 0           # the worker's input ended; its end of stream was sent

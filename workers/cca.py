@@ -7,11 +7,13 @@ without matching two streams.
 """
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from app.errors import InputError
 from app.messages import Blobs, Voxels
-from workers.base import Worker
+from workers.base import RECENT_FRAMES, Worker
 
 
 class ComponentAnalysis(Worker):
@@ -38,8 +40,8 @@ class ComponentAnalysis(Worker):
         Core((4, 4, 4), (0, 0, 0), 0.1, self.tree)(np.zeros((1, 3), np.uint16))   # compile before frames flow
         self.cca = None
         self.grid_key = None
-        self.components: list[int] = []
-        self.persons: list[int] = []
+        self.components: deque = deque(maxlen=RECENT_FRAMES)   # per frame: components
+        self.persons: deque = deque(maxlen=RECENT_FRAMES)      # ... and those called a person
 
     def _analysis(self, msg: Voxels):
         from app.tracking.blobs import ComponentAnalysis as Core
@@ -63,6 +65,6 @@ class ComponentAnalysis(Worker):
             colours=colours, surface=surface, labels=labels, features=feats, person=person))
 
     def extra_figures(self) -> dict:
-        c, p = getattr(self, "components", [])[-50:], getattr(self, "persons", [])[-50:]
+        c, p = getattr(self, "components", ()), getattr(self, "persons", ())
         return {"components": round(float(np.mean(c)), 1) if c else 0,
                 "person_blobs": round(float(np.mean(p)), 1) if p else 0}

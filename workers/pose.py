@@ -70,13 +70,15 @@ run, byte for byte.
 """
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from app.errors import InputError
 from app.frame_shares import frame_share, owns, valid_share
 from app.messages import Keypoints, Markers, Poses, Tracks, Voxels
 from app.pose.selection import pose_frame
-from workers.base import Worker
+from workers.base import RECENT_FRAMES, Worker
 from workers.restarts import REPLAY_FRAMES
 
 KEEP_FRAMES = 8
@@ -234,8 +236,8 @@ class Pose(Worker):
         self.voxels: dict[int, Voxels] = {}
         self.tracks: dict[int, Tracks] = {}
         self.done = -1
-        self.people_counts: list[int] = []
-        self.kept: list[float] = []    # share of the frame's voxels posed on (consensus)
+        self.people_counts: deque = deque(maxlen=RECENT_FRAMES)
+        self.kept: deque = deque(maxlen=RECENT_FRAMES)    # share of the frame's voxels posed on (consensus)
         self.at = None                 # (epoch, frame, t, grid) of the last frame the estimator took in
         self.saved_at = None           # ... of the last snapshot saved
         self.catching = False          # restored: posing the frames put out before, unpublished
@@ -492,8 +494,8 @@ class Pose(Worker):
             self.log.warning("frame %d: the silhouette term is off: %s", frame, why_not)
 
     def extra_figures(self) -> dict:
-        c = getattr(self, "people_counts", [])
-        kept = getattr(self, "kept", [])[-50:]
+        c = getattr(self, "people_counts", ())
+        kept = getattr(self, "kept", ())
         return {"people": int(c[-1]) if c else 0, "method": self.params.get("method"),
                 "consensus_share": round(float(np.mean(kept)), 3) if kept else None,
                 "silhouette_frames": list(getattr(self, "silhouette_frames", [0, 0])),

@@ -23,6 +23,7 @@ layout's segmentation workers produce, so the first frame is as fast as the othe
 from __future__ import annotations
 
 import time
+from collections import deque
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from app.messages import MAX_GRID_CELLS, Mask, Voxels
 from app.reconstruction.grid import VoxelGrid
 from app.reconstruction.reconstructor import PIPELINE_CARVING
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
-from workers.base import Worker
+from workers.base import RECENT_FRAMES, Worker
 
 MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
 STALL_S = 30.0    # offline safety net: a view this late is given up (and counted) all the same
@@ -140,8 +141,8 @@ class Reconstruction(Worker):
         self.late = {n: 0 for n in self.names}  # views given up on, per camera
         self.too_few_views = 0                   # frames dropped for fewer than min_views cameras
         self.partial_frames = 0                  # frames built without a camera of their set
-        self.timings: dict[str, list] = {}
-        self.occupied: list[int] = []
+        self.timings: dict[str, deque] = {}   # the last RECENT_FRAMES frames' step times
+        self.occupied: deque = deque(maxlen=RECENT_FRAMES)
         self.log.info("grid %s at %.3f m, tables %.0f MB built in %.0f ms", self.reconstructor.grid.dims,
                       p["voxel_size"], self.reconstructor.table_bytes / 1e6, self.reconstructor.build_ms)
 
@@ -282,7 +283,7 @@ class Reconstruction(Worker):
                 images[cam] = m.colour
         indices, colours, surface, timings = self.reconstructor.reconstruct(mask_arrays, images)
         for k, v in timings.items():
-            self.timings.setdefault(k, []).append(v)
+            self.timings.setdefault(k, deque(maxlen=RECENT_FRAMES)).append(v)
         self.occupied.append(len(indices))
         any_mask = next(iter(masks.values()))
         grid = self.reconstructor.grid
@@ -297,8 +298,8 @@ class Reconstruction(Worker):
         self.publish(self.keys.voxels(), vox)
 
     def extra_figures(self) -> dict:
-        recent = {k: v[-50:] for k, v in getattr(self, "timings", {}).items()}
-        occ = getattr(self, "occupied", [])[-50:]
+        recent = getattr(self, "timings", {})
+        occ = getattr(self, "occupied", ())
         return {"step_ms": {k: round(float(np.mean(v)), 3) for k, v in recent.items() if v},
                 "occupied_voxels": int(np.mean(occ)) if occ else 0,
                 "late_views": {c: n for c, n in getattr(self, "late", {}).items() if n},

@@ -17,11 +17,13 @@ walks in the gap (:meth:`~app.tracking.tracker.MultiTracker.relocate`).
 """
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from app.errors import InputError
 from app.messages import Blobs, Tracks
-from workers.base import Worker
+from workers.base import RECENT_FRAMES, Worker
 
 
 class Tracking(Worker):
@@ -83,7 +85,7 @@ class Tracking(Worker):
         self.tracker = MultiTracker(params, tree, self.ghost_test)
         self.occupancy = None
         self.grid_key = None
-        self.counts: list[int] = []
+        self.counts: deque = deque(maxlen=RECENT_FRAMES)   # tracks per frame
         self.at = None           # (epoch, frame, t, dims) of the last frame the tracker took in
         self.saved_at = None     # ... of the last snapshot saved
         self.resumed = None      # (frame, t) of the snapshot restored, until the first frame after it
@@ -175,7 +177,7 @@ class Tracking(Worker):
             self.save_arrays()
 
     def extra_figures(self) -> dict:
-        c = getattr(self, "counts", [])
+        c = getattr(self, "counts", ())
         return {"tracks": int(c[-1]) if c else 0,
                 "tracks_created": int(getattr(self, "tracker", None).next_id - 1) if hasattr(self, "tracker") else 0,
                 "ghost_sightings": int(self.tracker.ghosts) if hasattr(self, "tracker") else 0}
