@@ -117,9 +117,10 @@ def _compute(recording: Path, voxel_size: float, frames, progress, carving: dict
 def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict | None = None, calibration=None):
     """Run CCA (+ person test) and the multi-tracker over voxel frames, as the workers
     do; ``{frame: (ids, positions)}``. With the run's ``calibration``, new tracks pass
-    the ghost test as in the tracking worker (``tracking.ghosts``, its default). ``timings`` (optional) gets the per-frame ms of
-    ``cca`` and ``tracking`` (wall clock) and ``cca_cpu`` and ``tracking_cpu`` (this
-    thread's CPU time: what one core spends, whatever else shares the machine)."""
+    the ghost test as in the tracking worker (``tracking.ghosts``, its default).
+    ``timings`` (optional) gets the per-frame ms of ``cca`` and ``tracking`` (wall
+    clock) and ``cca_cpu`` and ``tracking_cpu`` (this thread's CPU time: what one core
+    spends, whatever else shares the machine)."""
     import time
 
     from app.tracking.blobs import ComponentAnalysis

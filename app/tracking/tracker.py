@@ -20,9 +20,9 @@ Each frame (:meth:`MultiTracker.update`):
    the classifier calls no-person for ``no_person_frames`` frames is lost; beyond the
    thesis (``no_person_credit``; 0 is the thesis), a track earns patience by the frames
    its share was a person: ``no_person_credit`` frames per such frame, at most
-   ``no_person_cap`` more, so a person who crouches or sits down for seconds (a blob
-   the classifier was not grown on) keeps the track that followed them standing, while
-   a piece of the hull that passed the person test for a moment does not;
+   ``no_person_cap`` more, so a person who crouches or sits down for seconds (a short,
+   wide blob the classifier calls no person) keeps the track that followed them
+   standing, while a piece of the hull that passed the person test for a moment does not;
 3. creation (§4.2.3): the voxels of each component the classifier calls a person that
    no target claims (farther than ``claim_radius`` from every target, xy) are a
    candidate when the classifier also calls *them* a person (so a person merged into
