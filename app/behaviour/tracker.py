@@ -54,7 +54,9 @@ class BehaviourTracker:
         self.filter = BehaviourFilter(model, particles, lam, rng=np.random.default_rng(rng))
         self.support, self.starts, self.iterations, self.lost = float(support), int(starts), int(iterations), lost
         self.blobs: BlobModel | None = None
-        self.fits: list[float] = []
+        # the fit qualities of the frames not lost: count, mean and summed squared deviation
+        # (Welford), so that a person tracked for days costs what one tracked a minute does
+        self.fits = (0, 0.0, 0.0)
         self.recoveries = 0
         self.lost_now = False     # the last step found the tracker lost
         self.last_position = None
@@ -129,17 +131,19 @@ class BehaviourTracker:
             d = blob_divergences(self.blobs, fitted, self.filter.states)
             lw = -np.log(np.maximum(d, 1e-3))   # w = 1 / D
         estimate = self.filter.update(lw)
-        fits = np.asarray(self.fits)
-        self.lost_now = len(fits) >= 5 and quality < fits.mean() - self.lost * max(fits.std(), 1e-6)
+        n, mean, m2 = self.fits
+        self.lost_now = n >= 5 and quality < mean - self.lost * max(np.sqrt(m2 / n), 1e-6)
         if self.lost_now:
             self.filter.recover()   # §6.3: a poor fit, the tracker is lost: next frame's particles spread
             self.recoveries += 1
         else:
-            self.fits.append(quality)
+            delta = quality - mean
+            mean += delta / (n + 1)
+            self.fits = (n + 1, mean, m2 + delta * (quality - mean))
         return estimate
 
     def restart(self, state, position=None) -> None:
-        """Every particle at ``state`` again (the blobs and the fits' history kept): the
+        """Every particle at ``state`` again (the blobs and the fits' statistics kept): the
         caller found the person by other means after a failure."""
         self.filter.reset(state)
         self.last_position = None if position is None else np.asarray(position, float).copy()

@@ -13,7 +13,8 @@ last track position and smoothed velocity, the state estimate, the random genera
 state, the particle sets (SHBM-APF: one per model, with their sizes; APF: one) and,
 with DDM, the limb switch (which units are on, their last check and the scouts of the
 lost ones); with the behaviour method once it took over, its tracker (the blobs learnt,
-the particles with their velocities, clusters and VLMM states, the fits' history) and
+the particles with their velocities, clusters and VLMM states, the fits' count, mean and
+summed squared deviation) and
 the frames SHBM-APF still poses after a failure.
 """
 from __future__ import annotations
@@ -94,7 +95,7 @@ def _tracker_state(tracker, prefix: str, arrays: dict) -> dict:
     arrays[prefix + "estimate"] = np.asarray(f.estimate, dtype=np.float64)
     if tracker.last_position is not None:
         arrays[prefix + "last_position"] = np.asarray(tracker.last_position, dtype=np.float64)
-    return {"vlmm": [list(map(int, q)) for q in f.vlmm_state], "fits": [float(v) for v in tracker.fits],
+    return {"vlmm": [list(map(int, q)) for q in f.vlmm_state], "fit_stats": [float(v) for v in tracker.fits],
             "recoveries": int(tracker.recoveries)}
 
 
@@ -126,7 +127,15 @@ def _restore_tracker(p: PersonPose, entry: dict, prefix: str, arrays) -> None:
     if f.estimate is None:
         raise SnapshotError(f"pose snapshot: {prefix}estimate is missing")
     t.last_position = _vector(arrays, prefix + "last_position", 3)
-    t.fits = [float(v) for v in entry["fits"]]
+    if "fit_stats" in entry:   # count, mean and summed squared deviation of the fits
+        fits = [float(v) for v in entry["fit_stats"]]
+    else:                      # a snapshot that kept every fit
+        old = np.asarray(entry["fits"], dtype=np.float64).reshape(-1)
+        mean = float(old.mean()) if len(old) else 0.0
+        fits = [len(old), mean, float(((old - mean) ** 2).sum())]
+    if len(fits) != 3 or not np.isfinite(fits).all() or fits[0] < 0 or fits[0] != int(fits[0]) or fits[2] < 0:
+        raise SnapshotError("pose snapshot: the behaviour tracker's fit statistics are malformed")
+    t.fits = (int(fits[0]), fits[1], fits[2])
     t.recoveries = int(entry["recoveries"])
     p.tracker, p.handback = t, int(entry["handback"])
 
