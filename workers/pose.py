@@ -131,6 +131,8 @@ class Pose(Worker):
         "floor": 0.02,              # m: floor prior on the lower ankle; 0 = none (thesis)
         "feet": 0.05,               # m: floor prior on the higher ankle too while the track stands; 0 = lower only
         "heading": 0.6,             # rad: yaw prior along the track's walking direction; 0 = none (thesis)
+        "toes": 0.0,                # rad: yaw prior along the way the feet point while not walking (app.pose.facing);
+                                    # 0 = none (the thesis)
         "ik": "table",              # IAPF arm proposals: table (look-up inverse kinematics) or straight
         "reach": 0.9,               # m: voxels farther from every track belong to nobody
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
@@ -176,7 +178,7 @@ class Pose(Worker):
               "gamma_budget": (0, 5000), "gamma_min": (2, 500),
               "importance_fraction": (0.0, 1.0), "low_legs": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0),
               "floor": (0.0, 10.0),
-              "heading": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
+              "heading": (0.0, 10.0), "toes": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0), "ground": (0.0, 10.0),
               "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),

@@ -5,7 +5,8 @@ What a pose change is worth on the pipeline's input is easy to misread: the pose
 draw random particles, and one scene's MMTA moves by 0.01-0.02 from one seed to the next
 (meeting3 at 4 cm: 0.79-0.85 over 30 seeds), more than most changes gain. This replays a
 run made with ``--set recorder.voxels=true``: its ``voxels.bin`` through the tracker (the
-tracking worker's defaults, as :func:`app.tracking.offline.track_frames` runs it) and a
+tracking worker's defaults and its ghost test, as :func:`app.tracking.offline.track_frames`
+runs it with the recording's calibration) and a
 :class:`~app.pose.estimator.PoseEstimator` with the run's pose worker parameters (its
 ``layout.yaml``) and overrides, each frame posed as the worker poses it
 (:func:`app.pose.selection.pose_frame`). With the run's own seed it gives the run's poses;
@@ -40,14 +41,14 @@ def _pose_params(results: Path, overrides: dict) -> dict:
     return dict(layout.worker(specs[0].name).params)
 
 
-def _tracks(msgs) -> dict:
+def _tracks(msgs, calibration) -> dict:
     from app.tracking.classifier import DEFAULT_TREE, load_tree
     from app.tracking.offline import VoxelFrame, track_frames
     from app.tracking.tracker import TrackerParams
 
     frames = [VoxelFrame(m.frame, m.t, m.indices.reshape(-1, 3), m.colours, m.surface) for m in msgs]
     grid = {"origin": list(msgs[0].origin), "dims": list(msgs[0].dims), "voxel_size": float(msgs[0].voxel_size)}
-    return dict(track_frames(frames, grid, TrackerParams(), load_tree(DEFAULT_TREE)).items())
+    return dict(track_frames(frames, grid, TrackerParams(), load_tree(DEFAULT_TREE), calibration=calibration).items())
 
 
 def _truth(recording: Path) -> dict:
@@ -81,9 +82,9 @@ def replay_poses(results, recording, seeds=(0,), overrides: dict | None = None, 
     missing = [m.frame for m in msgs if m.frame not in truth]
     if missing:
         raise InputError(f"{recording}: no ground truth for frame {missing[0]} of {path} (another recording?)")
-    tracks = _tracks(msgs)
     from calibration import load_calibration
     calibration = load_calibration(recording / "calibration.yaml")
+    tracks = _tracks(msgs, calibration)   # with the ghost test, as the tracking worker
     if verbose and float(params.get("silhouette", 0)) > 0 and not any(m.silhouette_sizes for m in msgs):
         print(f"{path}: the voxels carry no silhouettes (a run of an older build, or reconstruction.silhouettes=0): "
               "posed without the silhouette term", flush=True)

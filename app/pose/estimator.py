@@ -39,6 +39,7 @@ from app.pose.filters import APF, SHBMAPF, LimbSwitch
 from app.pose.flesh import build_flesh
 from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer
+from app.pose.facing import FacingVote, floor_footprint, frame_vote
 from app.pose.model import BodyModel, neutral_state
 from app.pose.observation import observe
 from app.keypoints.fusion import keypoint_hands
@@ -65,6 +66,7 @@ class PoseSettings:
     coverage_partial: bool = True   # coverage also on SHBM-APF's partial models (H1, H2)
     floor: float = 0.02             # m: the floor prior's deviation (app.pose.coverage); 0 = none (the thesis)
     heading: float = 0.6            # rad: deviation of the yaw from the track's walking direction; 0 = none
+    toes: float = 0.0               # rad: ... from the way the feet point while not walking (app.pose.facing); 0 = none
     ik: str = "table"               # IAPF arm proposals: look-up inverse kinematics (table) or straight arms
     lock_frames: int = 10           # DDM: no limb is switched off before the filter has locked on
     limb_criterion: str = "predicted"  # DDM lost-limb test: predicted (before the step) or thesis (after)
@@ -124,9 +126,9 @@ class PoseSettings:
             raise ValueError(f"likelihood {self.likelihood!r} must be partitioned or global")
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
-        if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.feet >= 0
+        if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.toes >= 0 and self.feet >= 0
                 and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0):
-            raise ValueError("coverage, floor, feet, heading, stance, ground, anchor and anchor_free must be >= 0 "
+            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor and anchor_free must be >= 0 "
                              "(0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
@@ -244,6 +246,7 @@ class PersonPose:
         self.frames = 0
         self.tracker = None     # behaviour: Caillette's tracker, once the blobs are learnt
         self.handback = 0       # behaviour: frames SHBM-APF still poses after the tracker was lost
+        self.vote = FacingVote()  # the feet's vote for the way the person faces (app.pose.facing)
 
     def build(self, height: float) -> None:
         """The body, its fleshed model and scorer and a fresh filter for stature ``height``."""
@@ -308,6 +311,8 @@ class PersonPose:
         self.scorer.both_feet = s.feet if (standing and s.floor > 0) else 0.0
         if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:
             self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
+        elif s.toes > 0 and self.vote.heading() is not None:   # not walking: the way the feet point
+            self.scorer.heading = (self.vote.heading(), s.toes)
         use_kp = keypoints is not None and s.keypoints > 0
         self.scorer.keypoints = (keypoints, s.keypoints, s.keypoint_gate, s.keypoint_conf) if use_kp else None
         if self.tracker is not None and not self.handback:   # behaviour weighed by the likelihood set up above
@@ -338,6 +343,10 @@ class PersonPose:
         est = self.filter.step(self.scorer, active=active, importance=importance)
         if self.switch is not None:
             est = self.switch.update(self.scorer, self.filter, est)
+        if s.toes > 0:   # a walker's feet (one lifting, one landing) say little: no vote, the old ones fade
+            footprint = floor_footprint(obs.occ, obs.origin, obs.voxel_size, float(s.room_lo[2]))
+            self.vote.add(frame_vote(self.model.joints(est), footprint, obs.origin, obs.voxel_size, self.height,
+                                     float(s.room_lo[2])) if standing else np.zeros(2))
         if s.method == "behaviour" and self.tracker is None and self.frames + 1 >= max(s.behaviour_start,
                                                                                       s.height_frames):
             self.tracker = self.behaviour_tracker()

@@ -9,7 +9,8 @@ an estimator from it, or raises :class:`SnapshotError` when it does not fit (ano
 format, other settings, missing or malformed arrays).
 
 Per person: the track id, stature (and the tops it was read from), frames posed, the
-last track position and smoothed velocity, the state estimate, the random generator's
+last track position and smoothed velocity, the feet's vote for the facing, the state
+estimate, the random generator's
 state, the particle sets (SHBM-APF: one per model, with their sizes; APF: one) and,
 with DDM, the limb switch (which units are on, their last check and the scouts of the
 lost ones); with the behaviour method once it took over, its tracker (the blobs learnt,
@@ -26,6 +27,7 @@ import numpy as np
 
 from app.files import json_entry, read_json_entry
 from app.pose.estimator import PersonPose, PoseEstimator, PoseSettings
+from app.pose.facing import FacingVote
 from app.pose.filters import SHBMAPF
 from app.pose.flesh import LIMBS
 from app.pose.model import N_DOF
@@ -55,6 +57,7 @@ def estimator_state(est: PoseEstimator) -> dict[str, np.ndarray]:
             value = getattr(p, name)
             if value is not None:
                 arrays[f"p{tid}.{name}"] = np.asarray(value, dtype=np.float64)
+        arrays[f"p{tid}.vote"] = p.vote.vector.copy()
         if p.filter is not None:
             f = p.filter
             if isinstance(f, SHBMAPF):
@@ -181,6 +184,7 @@ def restore_estimator(settings: PoseSettings, arrays) -> PoseEstimator:
             p.state = _vector(arrays, f"p{tid}.state", N_DOF)
             p.last_position = _vector(arrays, f"p{tid}.last_position", 3)
             p.velocity = _vector(arrays, f"p{tid}.velocity", 3)
+            p.vote = FacingVote(_vector(arrays, f"p{tid}.vote", 2))   # a snapshot without it: no vote yet
             if entry["height"] is not None:
                 p.build(float(entry["height"]))
                 f, spec = p.filter, entry["filter"]
