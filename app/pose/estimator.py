@@ -128,8 +128,8 @@ class PoseSettings:
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.toes >= 0 and self.feet >= 0
                 and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0):
-            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor and anchor_free must be >= 0 "
-                             "(0 switches them off)")
+            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor and anchor_free must be "
+                             ">= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
@@ -311,8 +311,8 @@ class PersonPose:
         self.scorer.both_feet = s.feet if (standing and s.floor > 0) else 0.0
         if s.heading > 0 and self.velocity is not None and np.hypot(*self.velocity[:2]) > 0.3:
             self.scorer.heading = (float(np.arctan2(self.velocity[1], self.velocity[0])), s.heading)
-        elif s.toes > 0 and self.vote.heading() is not None:   # not walking: the way the feet point
-            self.scorer.heading = (self.vote.heading(), s.toes)
+        elif s.toes > 0 and (yaw := self.vote.heading()) is not None:   # not walking: the way the feet point
+            self.scorer.heading = (yaw, s.toes)
         use_kp = keypoints is not None and s.keypoints > 0
         self.scorer.keypoints = (keypoints, s.keypoints, s.keypoint_gate, s.keypoint_conf) if use_kp else None
         if self.tracker is not None and not self.handback:   # behaviour weighed by the likelihood set up above
@@ -343,9 +343,11 @@ class PersonPose:
         est = self.filter.step(self.scorer, active=active, importance=importance)
         if self.switch is not None:
             est = self.switch.update(self.scorer, self.filter, est)
+        joints = None
         if s.toes > 0:   # a walker's feet (one lifting, one landing) say little: no vote, the old ones fade
+            joints = self.model.joints(est)
             footprint = floor_footprint(obs.occ, obs.origin, obs.voxel_size, float(s.room_lo[2]))
-            self.vote.add(frame_vote(self.model.joints(est), footprint, obs.origin, obs.voxel_size, self.height,
+            self.vote.add(frame_vote(joints, footprint, obs.origin, obs.voxel_size, self.height,
                                      float(s.room_lo[2])) if standing else np.zeros(2))
         if s.method == "behaviour" and self.tracker is None and self.frames + 1 >= max(s.behaviour_start,
                                                                                       s.height_frames):
@@ -355,7 +357,7 @@ class PersonPose:
             self.handback -= 1
             if not self.handback:
                 self.tracker.restart(est, position)
-        return self._posed(est, position)
+        return self._posed(est, position, joints)
 
     def _behaviour(self, est: np.ndarray, position):
         """A frame the behaviour tracker posed; lost, SHBM-APF poses the next
@@ -376,12 +378,13 @@ class PersonPose:
                                 temperature=s.behaviour_temperature,
                                 layers=s.behaviour_layers, refine=s.behaviour_refine)
 
-    def _posed(self, est: np.ndarray, position) -> tuple[np.ndarray, np.ndarray]:
-        """The frame's outcome: the state kept, the joints and their flags."""
+    def _posed(self, est: np.ndarray, position, joints=None) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's outcome: the state kept, the joints (``joints`` when the caller has
+        them already) and their flags."""
         self.state = est
         self.last_position = np.asarray(position, dtype=np.float64).copy()
         self.frames += 1
-        joints = self.model.joints(est)
+        joints = self.model.joints(est) if joints is None else joints
         flags = self.switch.joint_flags() if self.switch is not None else np.ones(len(JOINTS), dtype=bool)
         return joints, flags
 
