@@ -1,11 +1,13 @@
 """The pose priors for visual hulls beyond the thesis (app.pose.coverage): the stance
 prior (a person standing still has the feet under the hips) on its own and on a clip
-whose right foot is missing from the voxels, as gesture1's k = 0 hull lacks it."""
+whose right foot is missing from the voxels, as gesture1's k = 0 hull lacks it; the
+crown (the head under the top of the person's voxels) on its own and on a hull whose
+chest the masks lost."""
 import numpy as np
 import pytest
 
 from app.messages import JOINTS
-from app.pose.coverage import STANCE_FREE, stance_penalty
+from app.pose.coverage import CROWN_FREE, STANCE_FREE, crown_expectation, crown_penalty, stance_penalty
 from app.pose.estimator import PoseSettings
 from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, BodyModel, neutral_state
 from app.pose.offline import clip_errors, run_clip, simulated_clip
@@ -274,3 +276,37 @@ def test_coverage_is_the_masked_sum():
         ref = np.minimum(counts[:, active, 2].sum(axis=1) * delta ** 3 / max(n, 1), 1.0)
         got = coverage(counts, active, n, delta)
         assert np.array_equal(got, ref) and ((got < 1).any() or n == 0)
+
+
+def test_crown_expects_the_head_under_the_top_and_pushes_only_a_lower_head():
+    vs = 0.04
+    standing_top = 1.015 * H - vs / 2                           # the top the stature was read from
+    stand = neutral_state(H, (1.0, 2.0, None))
+    head = BodyModel(H).joints(stand)[J["head"], 2]
+    assert crown_expectation(standing_top, H, vs) == pytest.approx(head)
+    assert crown_expectation(standing_top + 0.3, H, vs) == pytest.approx(head)   # a hand above the head: capped
+    assert crown_expectation(standing_top - 0.5, H, vs) == pytest.approx(head - 0.5)   # sitting: the head lower
+    squat = stand.copy()
+    squat[2] -= 0.3
+    pen = crown_penalty(np.stack([stand, squat]), H, head, 0.03)
+    assert pen[0] == 0.0
+    assert pen[1] == pytest.approx(0.5 * ((0.3 - CROWN_FREE) / 0.03) ** 2)
+    assert crown_penalty(squat[None], H, head - 0.5, 0.03)[0] == 0.0          # the top says sitting: not pushed
+
+
+def test_crown_keeps_a_hull_without_its_chest_standing():
+    """The masks lose a grey shirt against a grey wall (random scene 10): the 4 cm hull
+    (k = 0) of gesture1 has nothing between 0.95 and 1.4 m. The scores alone let the body
+    sink into a crouch under the head's voxels; the crown holds it up."""
+    clip, cal = simulated_clip("gesture1", range(0, 40), 0.04, source="hull", tolerance=0,
+                               hide=lambda f, c: ~((c[:, 2] > 0.95) & (c[:, 2] < 1.4)))
+    mmta = {}
+    for crown in (0.0, 0.03):
+        s = PoseSettings(voxel_size=0.04, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
+                         crown=crown)
+        E = clip_errors(clip, run_clip(clip, s)["estimates"])[5:]
+        assert not np.isnan(E).any()
+        mmta[crown] = float((E <= 0.1).mean())
+        print(f"crown {crown}: MMTA {mmta[crown]:.3f}, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
+              f"pelvis median {1e3 * np.median(E[:, J['pelvis']]):.0f} mm")
+    assert mmta[0.03] >= 0.75 and mmta[0.03] > mmta[0.0] + 0.3, mmta

@@ -145,6 +145,8 @@ class Pose(Worker):
         "anchor": 0.05,             # m: deviation of the root beyond anchor_free from its track; 0 = off (meeting3
                                     # 3 seeds 0.822 -> 0.842: the door phantom; gesture1, walk1 identical)
         "anchor_free": 0.25,        # m
+        "crown": 0.015,             # m: the head no lower than the top of the person's voxels says (app.pose.coverage;
+                                    # tuning seeds 0-15 MMTA 0.721 -> 0.758, docs/benchmarks.md); 0 = off
         "voxels": "consensus",      # consensus: the voxels no camera misses (Voxels.misses == 0); all: the hull;
                                     # tolerant: consensus + low one-miss voxels near a track (app.pose.selection)
         "tolerant_low": 0.2,        # m: tolerant keeps one-miss voxels below this height
@@ -180,7 +182,7 @@ class Pose(Worker):
               "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "toes": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0),
               "ground": (0.0, 10.0),
-              "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0),
+              "anchor": (0.0, 10.0), "anchor_free": (0.0, 3.0), "crown": (0.0, 10.0),
               "tolerant_low": (0.0, 3.0), "tolerant_near": (0.0, 3.0), "tolerant_views": (1, 64),
               "silhouette": (0.0, 10.0), "silhouette_density": (0.5, 8.0), "silhouette_reach": (0.05, 3.0),
               "keypoints": (0.0, 10.0), "keypoint_gate": (0.01, 10.0), "keypoint_conf": (0.0, 1.0),

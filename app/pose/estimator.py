@@ -38,7 +38,7 @@ from app.pose.detections import Importance, detect
 from app.pose.filters import APF, SHBMAPF, LimbSwitch
 from app.pose.flesh import build_flesh
 from app.pose.likelihood import kernel_lut
-from app.pose.coverage import CoverageScorer
+from app.pose.coverage import CoverageScorer, crown_expectation
 from app.pose.facing import FacingVote, floor_footprint, frame_vote
 from app.pose.model import BodyModel, neutral_state
 from app.pose.observation import observe
@@ -78,6 +78,7 @@ class PoseSettings:
                                     # (the pose worker: 0.01, for the hulls; on true-body voxels it costs gesture1 0.01)
     anchor: float = 0.0             # m: the root within anchor_free of its track, beyond a Gaussian of this deviation; 0 = off
     anchor_free: float = 0.25       # m
+    crown: float = 0.0              # m: the head under the top of the person's voxels (app.pose.coverage); 0 = off
     reach: float = 0.9              # voxels farther than this from every track (m) are nobody's
     silhouette: float = 0.0         # sigma^2 of the silhouette term (app.pose.silhouette); 0 = off (the thesis)
     silhouette_density: float = 2.0  # ... the model's points for it on a lattice of this many voxel sizes (Eq. 6.26's factor)
@@ -127,8 +128,8 @@ class PoseSettings:
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.toes >= 0 and self.feet >= 0
-                and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0):
-            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor and anchor_free must be "
+                and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0 and self.crown >= 0):
+            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor, anchor_free and crown must be "
                              ">= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
@@ -305,6 +306,10 @@ class PersonPose:
         use = silhouettes is not None and s.silhouette > 0 and float(np.sum(silhouettes.counts)) > 0
         self.scorer.silhouette = (silhouettes, s.silhouette, self.silhouette_lut) if use else None
         self.scorer.anchor = (float(position[0]), float(position[1]), s.anchor_free, s.anchor) if s.anchor > 0 else None
+        self.scorer.crown = None
+        if s.crown > 0 and len(centres) >= 30:
+            top = blob_top(centres, s.stature == "axis")
+            self.scorer.crown = (crown_expectation(top, self.height, s.voxel_size), s.crown)
         # standing still (smoothed track speed < 0.3 m/s): both feet down (the k = 0 hull
         # often lacks a foot a camera sees behind furniture; gesture1's right ankle)
         standing = self.velocity is not None and np.hypot(*self.velocity[:2]) < 0.3
