@@ -263,6 +263,9 @@ def test_leg_penalties_are_the_floor_and_stance_priors():
         assert (st is None) == (stance == 0)
         if st is not None:
             assert np.array_equal(st, stance_penalty(states, H, stance)) and (st > 0).mean() > 0.1 and (st == 0).any()
+    crowned, _ = leg_penalties(states, H, 0.02, 0.05, 0.03, crown=(1.62, 0.015))   # the head in the same pass
+    head = crown_penalty(states, H, 1.62, 0.015)
+    assert np.array_equal(crowned, floor_penalty(states, H, 0.02, 0.05) + head) and (head > 0).mean() > 0.1
 
 
 def test_coverage_is_the_masked_sum():

@@ -120,6 +120,8 @@ def floor_penalty(states: np.ndarray, height: float, sigma: float, both: float =
 
 _LEGS = np.array([JOINTS.index(n) for n in ("l_hip", "l_ankle", "r_hip", "r_ankle")], dtype=np.int64)
 _LEGS_NEED = segments_needed(_LEGS)
+_LEGS_HEAD = np.array([JOINTS.index(n) for n in ("l_hip", "l_ankle", "r_hip", "r_ankle", "head")], dtype=np.int64)
+_LEGS_HEAD_NEED = segments_needed(_LEGS_HEAD)
 #: m: a standing ankle moves freely this far (horizontally) from under its hip
 STANCE_FREE = 0.08
 
@@ -139,19 +141,26 @@ def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float 
 
 
 def leg_penalties(states: np.ndarray, height: float, floor: float, both: float = 0.0, stance: float = 0.0,
-                  ground: float = 0.0):
+                  ground: float = 0.0, crown=None):
     """:func:`floor_penalty` (deviation ``floor``, ``both``) and, when ``stance > 0``,
     :func:`stance_penalty` (else None) from one forward kinematics of the legs and one
     loop: the same numbers as the two functions (the ankles are the same whichever
     joints are asked for; the operations are numpy's, one by one). ``ground > 0`` adds
-    :func:`ground_penalty` to the first."""
-    j = joints_subset(states, height, _LEGS, _LEGS_NEED)
+    :func:`ground_penalty` to the first, ``crown`` ``(expected, sigma)``
+    :func:`crown_penalty` (the head from the same forward kinematics, which shares the
+    root: a third of the head's own)."""
+    if crown is not None:
+        j = joints_subset(states, height, _LEGS_HEAD, _LEGS_HEAD_NEED)
+    else:
+        j = joints_subset(states, height, _LEGS, _LEGS_NEED)
     fl = np.empty(len(j))
     st = np.empty(len(j)) if stance > 0 else None
     _leg_penalties(j, 0.039 * height, float(floor), float(both), 0.9 * (standing_root_height(height) - 0.025 * height),
                    float(stance), STANCE_FREE, fl, st if st is not None else fl[:0])
     if ground > 0:
-        fl += _ground(j[:, 1::2, 2], 0.039 * height, ground)
+        fl += _ground(j[:, 1:4:2, 2], 0.039 * height, ground)
+    if crown is not None:
+        fl += _crown(j[:, 4, 2], *crown)
     return fl, st
 
 
@@ -185,12 +194,14 @@ def crown_expectation(top: float, height: float, voxel_size: float) -> float:
     return min(float(top), standing_top) - (standing_top - HEAD_STANDING * height)
 
 
-def crown_penalty(states: np.ndarray, height: float, expected: float, sigma: float,
-                  free: float = CROWN_FREE) -> np.ndarray:
-    """``0.5 ((expected - free - z_head)_+ / sigma)^2``: the head no lower than the top
-    of the person's voxels says (``expected`` from :func:`crown_expectation`)."""
-    z = joints_subset(states, height, _HEAD, _HEAD_NEED)[:, 0, 2]
-    return 0.5 * (np.maximum(expected - free - z, 0.0) / sigma) ** 2
+def crown_penalty(states: np.ndarray, height: float, expected: float, sigma: float) -> np.ndarray:
+    """``0.5 ((expected - CROWN_FREE - z_head)_+ / sigma)^2``: the head no lower than the
+    top of the person's voxels says (``expected`` from :func:`crown_expectation`)."""
+    return _crown(joints_subset(states, height, _HEAD, _HEAD_NEED)[:, 0, 2], expected, sigma)
+
+
+def _crown(z: np.ndarray, expected: float, sigma: float) -> np.ndarray:
+    return 0.5 * (np.maximum(expected - CROWN_FREE - z, 0.0) / sigma) ** 2
 
 
 def anchor_penalty(states: np.ndarray, x: float, y: float, free: float, sigma: float) -> np.ndarray:
@@ -280,16 +291,18 @@ class CoverageScorer(Scorer):
         if self.keypoints is not None:
             person, sigma, gate, conf = self.keypoints
             lw = lw - keypoint_penalty(states, self.flesh.height, person, sigma, gate, conf, act)
+        crown = self.crown if act[PARTS.index("head")] else None
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
             floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
-                                          self.stance if self.both_feet > 0 else 0.0, self.ground)
+                                          self.stance if self.both_feet > 0 else 0.0, self.ground, crown)
+            crown = None   # counted with the legs
             lw = lw - floor
             if stance is not None:
                 lw = lw - stance
+        if crown is not None:
+            lw = lw - crown_penalty(states, self.flesh.height, *crown)
         if self.anchor is not None:
             lw = lw - anchor_penalty(states, *self.anchor)
-        if self.crown is not None and act[PARTS.index("head")]:
-            lw = lw - crown_penalty(states, self.flesh.height, *self.crown)
         if self.heading is not None:
             yaw, sigma = self.heading
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))
