@@ -147,8 +147,8 @@ def leg_penalties(states: np.ndarray, height: float, floor: float, both: float =
     loop: the same numbers as the two functions (the ankles are the same whichever
     joints are asked for; the operations are numpy's, one by one). ``ground > 0`` adds
     :func:`ground_penalty` to the first, ``crown`` ``(expected, sigma)``
-    :func:`crown_penalty` (the head from the same forward kinematics, which shares the
-    root: a third of the head's own)."""
+    :func:`crown_penalty` (the head from the same forward kinematics: the legs' and the
+    head's chains share the root, and one pass costs less than two)."""
     if crown is not None:
         j = joints_subset(states, height, _LEGS_HEAD, _LEGS_HEAD_NEED)
     else:

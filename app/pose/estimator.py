@@ -128,9 +128,10 @@ class PoseSettings:
         if self.ik not in ("table", "straight"):
             raise ValueError(f"ik {self.ik!r} must be table or straight")
         if not (self.coverage >= 0 and self.floor >= 0 and self.heading >= 0 and self.toes >= 0 and self.feet >= 0
-                and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0 and self.crown >= 0):
-            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor, anchor_free and crown must be "
-                             ">= 0 (0 switches them off)")
+                and self.stance >= 0 and self.ground >= 0 and self.anchor >= 0 and self.anchor_free >= 0
+                and self.crown >= 0):
+            raise ValueError("coverage, floor, feet, heading, toes, stance, ground, anchor, anchor_free and crown "
+                             "must be >= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
         if self.surface not in ("outer", "boundary"):
