@@ -34,6 +34,16 @@ def test_stance_penalty_holds_upright_legs_only():
     assert pen[1] == pytest.approx(0.5 * ((d - STANCE_FREE) / 0.03) ** 2)
 
 
+def _posed_errors(clip, cal, voxel_size, **settings):
+    """Joint errors ``(T - 5, 15)`` of a one-person clip posed with ``settings`` (the
+    first 5 frames, lock-on, left out); every frame has a pose."""
+    s = PoseSettings(voxel_size=voxel_size, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
+                     **settings)
+    E = clip_errors(clip, run_clip(clip, s)["estimates"])[5:]
+    assert not np.isnan(E).any()
+    return E
+
+
 @pytest.fixture(scope="module")
 def footless_clip():
     """gesture1 (standing, waving), 1 s at 2 cm, the visual hull (k = 0) of the true
@@ -46,10 +56,7 @@ def test_stance_prior_keeps_the_footless_leg_under_the_hip(footless_clip):
     clip, cal = footless_clip
     within = {}
     for stance in (0.0, 0.03):
-        s = PoseSettings(voxel_size=0.02, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
-                         stance=stance)
-        E = clip_errors(clip, run_clip(clip, s)["estimates"])[5:]
-        assert not np.isnan(E).any()
+        E = _posed_errors(clip, cal, 0.02, stance=stance)
         within[stance] = float((E[:, J["r_ankle"]] <= 0.1).mean())
         print(f"stance {stance}: right ankle within 100 mm in {within[stance]:.2f} of the frames, "
               f"median {1e3 * np.median(E[:, J['r_ankle']]):.0f} mm, MPJPE {1e3 * E.mean():.0f} mm")
@@ -305,10 +312,7 @@ def test_crown_keeps_a_hull_without_its_chest_standing():
                                hide=lambda f, c: ~((c[:, 2] > 0.95) & (c[:, 2] < 1.4)))
     mmta = {}
     for crown in (0.0, 0.03):
-        s = PoseSettings(voxel_size=0.04, density=2, room_lo=tuple(cal.room_min), room_hi=tuple(cal.room_max),
-                         crown=crown)
-        E = clip_errors(clip, run_clip(clip, s)["estimates"])[5:]
-        assert not np.isnan(E).any()
+        E = _posed_errors(clip, cal, 0.04, crown=crown)
         mmta[crown] = float((E <= 0.1).mean())
         print(f"crown {crown}: MMTA {mmta[crown]:.3f}, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
               f"pelvis median {1e3 * np.median(E[:, J['pelvis']]):.0f} mm")
