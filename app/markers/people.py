@@ -29,7 +29,7 @@ from app.files import json_entry, read_json_entry
 from app.markers.likelihood import COSTS
 from app.markers.tracking import MarkerTracker
 from app.pose.estimator import blob_top
-from app.pose.model import N_DOF, neutral_state
+from app.pose.model import N_DOF, neutral_state, stature_from_top
 
 __all__ = ["MarkerSettings", "MarkerPeople", "pose_marker_frame", "state_arrays", "restore_people", "SnapshotError"]
 
@@ -74,7 +74,7 @@ def person_stature(centres: np.ndarray, voxel_size: float) -> float | None:
     does (:class:`app.pose.estimator.PersonPose`); None for fewer than 30 voxels."""
     if len(centres) < 30:
         return None
-    return float(np.clip((blob_top(centres) + voxel_size / 2) / 1.015, 1.45, 2.05))
+    return stature_from_top(blob_top(centres), voxel_size)
 
 
 class MarkerPeople:

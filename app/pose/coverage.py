@@ -95,7 +95,7 @@ from numba import njit
 from app.messages import JOINTS
 from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
-from app.pose.model import joints_subset, segments_needed, standing_root_height
+from app.pose.model import joints_subset, neutral_state, segments_needed, standing_root_height, standing_top
 from app.pose.silhouette import silhouette_coverage
 from app.keypoints.fusion import keypoint_penalty
 
@@ -182,16 +182,16 @@ _HEAD = np.array([JOINTS.index("head")], dtype=np.int64)
 _HEAD_NEED = segments_needed(_HEAD)
 #: m: the head moves freely this far below its expected height (a bow, a tilt)
 CROWN_FREE = 0.06
-#: the head centre's height standing straight, a share of the stature (:func:`app.pose.model.neutral_state`)
-HEAD_STANDING = 0.935
+#: the head centre's height standing straight, a share of the stature (the model's neutral pose, 0.935)
+HEAD_STANDING = float(joints_subset(neutral_state(1.0)[None], 1.0, _HEAD, _HEAD_NEED)[0, 0, 2])
 
 
 def crown_expectation(top: float, height: float, voxel_size: float) -> float:
     """The head centre's expected height below ``top``, the highest voxel centre near the
     body axis: as far below it as standing, the top capped at the standing one
-    (``1.015 H - voxel_size / 2``, the inverse of the estimator's stature)."""
-    standing_top = 1.015 * height - voxel_size / 2
-    return min(float(top), standing_top) - (standing_top - HEAD_STANDING * height)
+    (:func:`app.pose.model.standing_top`, the inverse of the stature's reading)."""
+    full = standing_top(height, voxel_size)
+    return min(float(top), full) - (full - HEAD_STANDING * height)
 
 
 def crown_penalty(states: np.ndarray, height: float, expected: float, sigma: float) -> np.ndarray:

@@ -40,7 +40,7 @@ from app.pose.flesh import build_flesh
 from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer, crown_expectation
 from app.pose.facing import FacingVote, floor_footprint, frame_vote
-from app.pose.model import BodyModel, neutral_state
+from app.pose.model import BodyModel, neutral_state, stature_from_top
 from app.pose.observation import observe
 from app.keypoints.fusion import keypoint_hands
 
@@ -285,14 +285,16 @@ class PersonPose:
             velocity = (position - self.last_position) * 25.0
             # smoothed for the heading prior (a tracker's centroid jitters by a centimetre a frame)
             self.velocity = velocity if self.velocity is None else 0.7 * self.velocity + 0.3 * velocity
-        if len(centres) >= 30 and (self.filter is None or self.frames < s.height_frames):
-            self.tops.append(blob_top(centres, s.stature == "axis"))   # read while the stature is settled only
+        settling = self.filter is None or self.frames < s.height_frames
+        top = blob_top(centres, s.stature == "axis") if len(centres) >= 30 and (settling or s.crown > 0) else None
+        if top is not None and settling:
+            self.tops.append(top)   # read while the stature is settled only
         if self.filter is None:
             if len(self.tops) < 1:
                 return None
-            self.build(float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05)))
+            self.build(stature_from_top(max(self.tops), s.voxel_size))
         elif self.frames < s.height_frames and len(self.tops):
-            h = float(np.clip((max(self.tops) + s.voxel_size / 2) / 1.015, 1.45, 2.05))
+            h = stature_from_top(max(self.tops), s.voxel_size)
             if abs(h - self.height) > 0.015:   # the stature grows with more views of the top
                 keep = self.filter
                 self.build(h)
@@ -307,10 +309,8 @@ class PersonPose:
         use = silhouettes is not None and s.silhouette > 0 and float(np.sum(silhouettes.counts)) > 0
         self.scorer.silhouette = (silhouettes, s.silhouette, self.silhouette_lut) if use else None
         self.scorer.anchor = (float(position[0]), float(position[1]), s.anchor_free, s.anchor) if s.anchor > 0 else None
-        self.scorer.crown = None
-        if s.crown > 0 and len(centres) >= 30:
-            top = blob_top(centres, s.stature == "axis")
-            self.scorer.crown = (crown_expectation(top, self.height, s.voxel_size), s.crown)
+        self.scorer.crown = (crown_expectation(top, self.height, s.voxel_size), s.crown) \
+            if s.crown > 0 and top is not None else None
         # standing still (smoothed track speed < 0.3 m/s): both feet down (the k = 0 hull
         # often lacks a foot a camera sees behind furniture; gesture1's right ankle)
         standing = self.velocity is not None and np.hypot(*self.velocity[:2]) < 0.3

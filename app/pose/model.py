@@ -286,6 +286,22 @@ def neutral_state(height: float = 1.75, position=(0.0, 0.0, None), yaw: float = 
     return y
 
 
+#: the top of a standing person's voxels over their stature (the hair above the crown)
+TOP_OVER_STATURE = 1.015
+
+
+def stature_from_top(top: float, voxel_size: float) -> float:
+    """The stature (m, within 1.45-2.05) of a person whose highest voxel centre near the
+    body axis is at ``top``: the voxel's upper face over :data:`TOP_OVER_STATURE`."""
+    return float(np.clip((top + voxel_size / 2) / TOP_OVER_STATURE, 1.45, 2.05))
+
+
+def standing_top(height: float, voxel_size: float) -> float:
+    """The highest voxel centre of a person of stature ``height`` standing straight (the
+    inverse of :func:`stature_from_top`)."""
+    return TOP_OVER_STATURE * height - voxel_size / 2
+
+
 def standing_root_height(height: float) -> float:
     """Height of the root (pelvis joint) above the floor standing straight: ankle
     (0.039 H) + shin + thigh + hips below the root."""
