@@ -392,7 +392,10 @@ def check_voxel_fields(msg) -> int:
     _names(msg, "cameras")
     idx = _array(msg, "indices", "<i2 <u2 <i4 <u4 <i8", (None, 3), allow_empty=True)
     n = len(idx) if idx.size else 0
-    if n and (idx.min() < 0 or (idx.max(axis=0) >= np.asarray(msg.dims)).any()):
+    # a column at a time: numpy's max(axis=0) over (N, 3) walks the array 3 values a step,
+    # 3 ms a frame of crowd6 at 2 cm against 0.2 for the columns (every consumer of the
+    # voxels validates them: each pose shard too, issue 26)
+    if n and (idx.min() < 0 or any(int(idx[:, c].max()) >= msg.dims[c] for c in range(3))):
         raise MessageError(f"{cls}: indices outside the grid")
     _array(msg, "colours", "|u1", (n, 3), allow_empty=True)
     _array(msg, "surface", "|b1", (n,), allow_empty=True)
