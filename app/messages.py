@@ -371,9 +371,11 @@ class Voxels(Message):
             at += h * row
         return out
 
-    def centres(self) -> np.ndarray:
-        """World coordinates of the voxel centres (N, 3)."""
-        return np.asarray(self.origin) + (self.indices.astype(np.float64) + 0.5) * self.voxel_size
+    def centres(self, where=None) -> np.ndarray:
+        """World coordinates of the voxel centres (N, 3); ``where``: a boolean mask or index
+        array, the centres of those voxels alone (the same values as ``centres()[where]``)."""
+        idx = self.indices if where is None else self.indices[where]
+        return np.asarray(self.origin) + (idx.astype(np.float64) + 0.5) * self.voxel_size
 
 
 def check_voxel_fields(msg) -> int:
@@ -559,9 +561,11 @@ class Blobs(Message):
             raise MessageError(f"Blobs: labels outside 0 .. {k - 1}")
         _array(self, "person", "|u1", (k,), allow_empty=k == 0)
 
-    def centres(self) -> np.ndarray:
-        """World coordinates of the voxel centres (N, 3)."""
-        return np.asarray(self.origin) + (self.indices.astype(np.float64) + 0.5) * self.voxel_size
+    def centres(self, where=None) -> np.ndarray:
+        """World coordinates of the voxel centres (N, 3); ``where``: a boolean mask or index
+        array, the centres of those voxels alone (the same values as ``centres()[where]``)."""
+        idx = self.indices if where is None else self.indices[where]
+        return np.asarray(self.origin) + (idx.astype(np.float64) + 0.5) * self.voxel_size
 
 
 @dataclass(kw_only=True)

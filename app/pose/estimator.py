@@ -167,24 +167,48 @@ class PoseSettings:
         return int(min(self.gamma, max(self.gamma_min, self.gamma_budget // people)))
 
 
-def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float) -> np.ndarray:
+def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float, wanted=None) -> np.ndarray:
     """Index of the owning track of every voxel (nearest in the floor plane, the first of
-    equals), -1 for none."""
+    equals), -1 for none. ``wanted``: indices of the tracks whose voxels are asked for (a
+    pose shard's people), or None for all; a voxel that is none of theirs is -1 then
+    (found without the other tracks: only a voxel within ``reach`` of a wanted track can
+    be its own, so the owners of the wanted tracks' voxels are those of the full pass)."""
     owner = np.full(len(centres), -1, dtype=np.int64)
     if len(positions) == 0 or len(centres) == 0:
         return owner
+    pick = np.zeros(len(positions), np.bool_)
+    pick[np.arange(len(positions)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+    if not pick.any():
+        return owner
     _owners(np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(positions, np.float64), float(reach),
-            owner)
+            pick, owner)
     return owner
 
 
 @njit(cache=True, nogil=True)
-def _owners(centres, positions, reach, owner):
+def _owners(centres, positions, reach, pick, owner):
     """:func:`assign_voxels`' loop: the distances as ``np.linalg.norm`` computes them
     (``sqrt(dx * dx + dy * dy)``) and the first nearest as ``np.argmin`` picks it, in one
     pass without the (N, T) temporaries (at 2 cm, 16 ms a frame of crowd6 through numpy,
-    done by every pose worker: issue 26)."""
+    done by every pose worker: issue 26). A voxel farther than ``reach`` from every
+    ``pick``ed track is -1 without looking at the others (a shard posing one of six
+    people: a sixth of the distances)."""
+    everyone = True
+    for k in range(pick.shape[0]):
+        everyone = everyone and pick[k]
     for i in range(centres.shape[0]):
+        if not everyone:
+            near = False
+            for k in range(positions.shape[0]):
+                if pick[k]:
+                    dx = centres[i, 0] - positions[k, 0]
+                    dy = centres[i, 1] - positions[k, 1]
+                    if math.sqrt(dx * dx + dy * dy) <= reach:
+                        near = True
+                        break
+            if not near:
+                owner[i] = -1
+                continue
         best, nearest = -1, np.inf
         for k in range(positions.shape[0]):
             dx = centres[i, 0] - positions[k, 0]
@@ -435,7 +459,12 @@ class PoseEstimator:
                            or self.settings.method != "behaviour") else np.asarray(colours)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         ids = [int(i) for i in ids]
-        owner = assign_voxels(centres, positions, self.settings.reach)
+        # who this worker poses (``only``: a pose shard's share of the tracks); the frame's
+        # voxels and silhouette pixels are split among every track, but only those of these
+        # people are looked for (the same owners as the full split, a fraction of the work)
+        mine_k = [k for k, tid in enumerate(ids) if only is None or only(tid)]
+        wanted = None if len(mine_k) == len(ids) else mine_k
+        owner = assign_voxels(centres, positions, self.settings.reach, wanted)
         surface = None if surface is None or len(surface) != len(centres) else np.asarray(surface, bool)
         out = {}
         # the budget is shared by every person of the frame, whoever poses them: a pose worker
@@ -445,11 +474,10 @@ class PoseEstimator:
         # poses of the sharded and the single layouts are the same
         gamma = self.settings.shbm_gamma(len(ids)) if self.settings.method.startswith("shbm") else None
         spacing = self.settings.silhouette_density * self.settings.voxel_size if self.settings.silhouette_fit else 0.0
-        silhouettes = view.people(positions, spacing) if view is not None else None
+        silhouettes = view.people(positions, spacing, wanted) if view is not None else None
         jobs = []
-        for k, tid in enumerate(ids):
-            if only is not None and not only(tid):
-                continue
+        for k in mine_k:
+            tid = ids[k]
             person = self.people.get(tid)
             if person is None:
                 person = self.people[tid] = PersonPose(self.settings, tid, np.random.default_rng(

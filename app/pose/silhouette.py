@@ -111,16 +111,33 @@ def _rays(camera, width: int, height: int) -> CameraRays:
 
 
 @njit(cache=True, nogil=True)
-def _pixel_owners(segments, rows, cols, points, reach, owner):
+def _pixel_owners(segments, rows, cols, points, reach, pick, owner):
     """Per pixel ``(rows, cols)`` the track ``points (T, 3)`` whose ``reach`` its ray's
     segment passes, when exactly one does, else -1: the horizontal distance of each point
     to the segment (``CameraRays.segments``: to the point's projection on the segment's
     line, clamped to its ends), one pixel at a time, without the (n, T) temporaries of the numpy it
-    replaced (a frame's silhouettes at 2 cm cost every pose worker 7 ms: issue 26)."""
+    replaced (a frame's silhouettes at 2 cm cost every pose worker 7 ms: issue 26). A
+    pixel whose ray passes no ``pick``ed track is -1 without looking at the others (a
+    pose shard's people: only they can own it)."""
+    everyone = True
+    for k in range(pick.shape[0]):
+        everyone = everyone and pick[k]
     for i in range(rows.shape[0]):
         ax, ay = segments[rows[i], cols[i], 0], segments[rows[i], cols[i], 1]
         bx, by = segments[rows[i], cols[i], 2] - ax, segments[rows[i], cols[i], 3] - ay
         den = max(bx * bx + by * by, 1e-12)
+        if not everyone:
+            near = False
+            for k in range(points.shape[0]):
+                if pick[k]:
+                    px, py = points[k, 0] - ax, points[k, 1] - ay
+                    u = min(max((px * bx + py * by) / den, 0.0), 1.0)
+                    if np.hypot(px - u * bx, py - u * by) < reach:
+                        near = True
+                        break
+            if not near:
+                owner[i] = -1
+                continue
         n, first = 0, -1
         for k in range(points.shape[0]):
             px, py = points[k, 0] - ax, points[k, 1] - ay
@@ -152,8 +169,9 @@ class SilhouetteView:
         self.reach = float(reach)
         self.min_pixels = int(min_pixels)
 
-    def people(self, positions: np.ndarray, spacing: float = 0.0) -> list[PersonSilhouettes]:
-        """Per track (``positions (T, 3)``) its :class:`PersonSilhouettes`. ``spacing`` (m,
+    def people(self, positions: np.ndarray, spacing: float = 0.0, wanted=None) -> list:
+        """Per track (``positions (T, 3)``) its :class:`PersonSilhouettes` (``wanted``: the
+        indices of the tracks asked for, None for all; the others' are None). ``spacing`` (m,
         0 = off): the model points' lattice spacing; each person's silhouette in a camera
         is coarsened (a coarse pixel is the person's when any of its pixels is) by the
         whole factor that makes a pixel at the person's depth about that wide
@@ -161,6 +179,8 @@ class SilhouetteView:
         on how near the camera stands or how fine it is."""
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         T, C = len(positions), len(self.masks)
+        pick = np.zeros(T, np.bool_)
+        pick[np.arange(T) if wanted is None else np.asarray(list(wanted), np.int64)] = True
         H = max((m.shape[0] for m in self.masks), default=1)
         W = max((m.shape[1] for m in self.masks), default=1)
         grids = np.zeros((T, C, H, W), np.uint8)
@@ -171,8 +191,8 @@ class SilhouetteView:
             if not len(rows) or not T:
                 continue
             owner = np.empty(len(rows), np.int64)   # the one track whose reach the pixel's ray passes, or -1
-            _pixel_owners(rays.segments, rows, cols, positions, self.reach, owner)
-            for k in range(T):
+            _pixel_owners(rays.segments, rows, cols, positions, self.reach, pick, owner)
+            for k in np.flatnonzero(pick):
                 mine = owner == k
                 n = int(mine.sum())
                 if n < self.min_pixels:
@@ -189,7 +209,7 @@ class SilhouetteView:
                     counts[k, c] = n
         R = np.array([r.R for r in self.rays]).reshape(C, 3, 3)
         t = np.array([r.t for r in self.rays]).reshape(C, 3)
-        return [PersonSilhouettes(grids[k], counts[k], intr[k], R, t) for k in range(T)]
+        return [PersonSilhouettes(grids[k], counts[k], intr[k], R, t) if pick[k] else None for k in range(T)]
 
 
 def coarsening(rays: CameraRays, position, spacing: float, body_z: float = 0.9) -> int:
@@ -301,4 +321,4 @@ def warm_up() -> None:
     silhouette_coverage(neutral_state(1.75)[None], 1.75, kernel_lut(build_flesh(1.75, 0.08, 1.0)),
                         np.ones(len(PARTS), bool), person, np.zeros((1, 2, 2), np.int64), 1)
     _pixel_owners(np.zeros((1, 1, 4)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), 1.0,
-                  np.empty(1, np.int64))
+                  np.ones(1, np.bool_), np.empty(1, np.int64))
