@@ -36,19 +36,25 @@ def test_pipeline_profile_report(tiny_recording, tmp_path, spine_layout):
 
 def test_stage_figures_sum_the_cpu_of_a_stage_s_workers():
     """``smartroom bench`` per stage: three pose shards' CPU per frame add up (how well
-    the stage scales out is that sum against one worker's); the slowest shard's process
-    time is the stage's."""
+    the stage scales out is that sum against one worker's), two reconstruction workers
+    taking the frames in turn share the stage's frames; the slowest shard's process time
+    is the stage's."""
     from app.benchmarks.pipeline import by_stage
 
-    def worker(stage, order, cpu, p50):
-        return {"stage": stage, "order": order, "cpu_ms_per_frame": cpu, "process_ms": {"p50": p50, "p95": p50}}
+    def worker(stage, order, cpu, p50, frames=100):
+        return {"stage": stage, "order": order, "cpu_ms_per_frame": cpu, "process_ms": {"p50": p50, "p95": p50},
+                "frames_in": frames, "frames_out": frames}
 
-    stages = {"pose_0": worker("pose", 5, 10.0, 12.0), "pose_1": worker("pose", 5, 11.5, 14.0),
+    stages = {"reconstruction_0": worker("reconstruction", 2, 30.0, 30.0, 50),   # frames taken in turn
+              "reconstruction_1": worker("reconstruction", 2, 34.0, 33.0, 50),
+              "pose_0": worker("pose", 5, 10.0, 12.0), "pose_1": worker("pose", 5, 11.5, 14.0),
               "pose_2": worker("pose", 5, 9.0, 11.0), "tracking": worker("tracking", 4, 7.0, 7.5)}
-    out = by_stage(stages)
-    assert list(out) == ["tracking", "pose"]
+    out = by_stage(stages, frames=100)
+    assert list(out) == ["reconstruction", "tracking", "pose"]
     assert out["pose"]["workers"] == ["pose_0", "pose_1", "pose_2"]
     assert out["pose"]["cpu_ms_per_frame"] == 30.5 and out["pose"]["process_ms_p50"] == 14.0
+    # two workers of 50 frames each at 30 and 34 ms a frame: 32 ms a frame of the stage's 100, not 64
+    assert out["reconstruction"]["cpu_ms_per_frame"] == 32.0 and out["reconstruction"]["process_ms_p50"] == 33.0
 
 
 def test_sweep_tabulates_rtf_per_value(tiny_recording, tmp_path, spine_layout):

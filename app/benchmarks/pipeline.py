@@ -94,7 +94,7 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
             # per frame: [frame, seconds since the first capture, latency from capture (ms)]
             "per_frame": [[int(r[0]), round(float(r[3] - t0), 4), round(float(v), 3)] for r, v in zip(rows, lat)],
         }
-    report["by_stage"] = by_stage(report["stages"])
+    report["by_stage"] = by_stage(report["stages"], run.frames)
     if limiting is not None:
         report["rtf_over_time"] = _rtf_over_time(stages[limiting]["rows"][:, 3], t0, fps_rec)
         report["final_stage"] = limiting
@@ -103,19 +103,28 @@ def profile_run(layout: Layout, run: RunSpec, out: Path, progress=True) -> dict:
     return report
 
 
-def by_stage(stages: dict) -> dict:
+def by_stage(stages: dict, frames: int | None = None) -> dict:
     """Per stage (its kind), over the workers that share it (pose shards, a segmentation
-    worker per camera): the workers, the CPU per frame summed over them (each worker's
-    process CPU from its first input to its last output, every thread counted, over the
-    frames it handled: how well the stage scales out is this sum against one worker's) and the slowest
-    worker's process time p50 (what holds the stage's frame)."""
+    worker per camera, reconstruction workers taking frames in turn): the workers, the
+    CPU per frame summed over them (each worker's process CPU from its first input to its
+    last output, every thread counted, over the stage's frames: how well the stage scales
+    out is this sum against one worker's) and the slowest worker's process time p50 (what
+    holds the stage's frame). The stage's frames: the most any worker handled, or, where
+    the workers took turns (frame shares), the frames they handled together, at most
+    ``frames`` (the run's: workers that each see every frame add up to more)."""
     out: dict = {}
     for name, s in stages.items():
-        g = out.setdefault(s["stage"], {"workers": [], "cpu_ms_per_frame": 0.0, "process_ms_p50": 0.0,
+        g = out.setdefault(s["stage"], {"workers": [], "cpu_ms": 0.0, "frames": [], "process_ms_p50": 0.0,
                                         "order": s["order"]})
         g["workers"].append(name)
-        g["cpu_ms_per_frame"] = round(g["cpu_ms_per_frame"] + float(s.get("cpu_ms_per_frame") or 0.0), 3)
+        n = max(1, int(s.get("frames_in") or 0), int(s.get("frames_out") or 0))
+        g["cpu_ms"] += float(s.get("cpu_ms_per_frame") or 0.0) * n
+        g["frames"].append(n)
         g["process_ms_p50"] = max(g["process_ms_p50"], float(s["process_ms"]["p50"]))
+    for g in out.values():
+        handled = max(g["frames"]) if frames is None else max(max(g["frames"]), min(sum(g["frames"]), int(frames)))
+        g["cpu_ms_per_frame"] = round(g.pop("cpu_ms") / handled, 3)
+        g.pop("frames")
     return dict(sorted(out.items(), key=lambda kv: kv[1]["order"]))
 
 
