@@ -50,3 +50,38 @@ def test_tolerant_needs_enough_views_and_a_track():
     assert pose_subset(None, centres, track, mode="tolerant") is None   # voxels without misses: all
     with pytest.raises(ValueError):
         pose_subset(misses, centres, track, mode="k1")
+
+
+def test_a_pose_shard_finds_the_owners_of_its_people_s_voxels_alone():
+    """A pose shard posing some of the frame's tracks (issue 26) looks only at the voxels
+    and silhouette pixels within reach of its people, and finds for them the owners the
+    full split of the frame among every track gives: same voxels per posed person, to the
+    bit, on voxels at the edge of the reach too."""
+    from app.messages import Voxels
+    from app.pose.estimator import assign_voxels
+    from app.pose.selection import within_reach
+
+    rng = np.random.default_rng(3)
+    vs, origin, dims = 0.02, [-0.5, -0.5, 0.0], [200, 200, 100]
+    idx = rng.integers(0, 100, size=(20000, 3)).astype(np.uint16) * np.array([2, 2, 1], np.uint16)
+    vox = Voxels(frame=0, stamp=0.0, t=0.0, voxel_size=vs, origin=origin, dims=dims, cameras=["a"], indices=idx)
+    centres = vox.centres()
+    tracks = rng.uniform(0.0, 3.5, size=(6, 3))
+    tracks[4, :2] = tracks[3, :2] + 0.3            # two people close: their reaches overlap
+    reach = 0.9
+    tracks[5, 0] = centres[7, 0] + reach           # a voxel right at the edge of a reach
+    tracks[5, 1] = centres[7, 1]
+    full = assign_voxels(centres, tracks, reach)
+    for wanted in ([0], [3], [3, 4], [5], [1, 2, 5], []):
+        take = within_reach(vox, tracks, reach, wanted)
+        mine = np.isin(full, wanted)
+        assert not (mine & ~take).any()            # every voxel a posed person owns is looked at
+        assert np.array_equal(vox.centres(take), centres[take])
+        part = assign_voxels(centres[take], tracks, reach, wanted)
+        for k in wanted:
+            assert np.array_equal(centres[take][part == k], centres[full == k])
+        if wanted:   # on every voxel: those out of every posed person's reach are nobody's
+            alone = assign_voxels(centres, tracks, reach, wanted)
+            dx, dy = centres[:, None, 0] - tracks[None, wanted, 0], centres[:, None, 1] - tracks[None, wanted, 1]
+            far = np.sqrt(dx * dx + dy * dy).min(axis=1) > reach
+            assert far.any() and (alone[far] == -1).all() and np.array_equal(alone[~far], full[~far])

@@ -187,6 +187,9 @@ def test_each_person_owns_only_their_own_pixels(calibration):
         if mine_b.sum() > 20:
             assert (mine_b & undistorted_a).sum() <= 0.1 * mine_b.sum()
     assert (pa.counts > 0).sum() >= 3 and (pb.counts > 0).sum() >= 3
+    # a pose shard posing B alone (issue 26) gets B's pixels as the full split gives them
+    none_a, only_b = view.people(np.array([[1.5, 2.0, 1.0], [3.5, 2.0, 1.0]]), 0.0, [1])
+    assert none_a is None and np.array_equal(only_b.grids, pb.grids) and np.array_equal(only_b.counts, pb.counts)
 
 
 @pytest.fixture(scope="module")

@@ -170,9 +170,10 @@ class PoseSettings:
 def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float, wanted=None) -> np.ndarray:
     """Index of the owning track of every voxel (nearest in the floor plane, the first of
     equals), -1 for none. ``wanted``: indices of the tracks whose voxels are asked for (a
-    pose shard's people), or None for all; a voxel that is none of theirs is -1 then
-    (found without the other tracks: only a voxel within ``reach`` of a wanted track can
-    be its own, so the owners of the wanted tracks' voxels are those of the full pass)."""
+    pose shard's people), or None for all; a voxel farther than ``reach`` from every
+    wanted track is -1 then, found without looking at the other tracks (only a voxel
+    within ``reach`` of a track can be its own, so the wanted tracks' voxels are those of
+    the full pass; a voxel near a wanted track keeps whichever owner it has)."""
     owner = np.full(len(centres), -1, dtype=np.int64)
     if len(positions) == 0 or len(centres) == 0:
         return owner
