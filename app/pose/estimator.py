@@ -475,7 +475,7 @@ class PoseEstimator:
         # poses of the sharded and the single layouts are the same
         gamma = self.settings.shbm_gamma(len(ids)) if self.settings.method.startswith("shbm") else None
         spacing = self.settings.silhouette_density * self.settings.voxel_size if self.settings.silhouette_fit else 0.0
-        silhouettes = view.people(positions, spacing, wanted) if view is not None else None
+        silhouettes = view.people(positions, spacing, wanted) if view is not None and mine_k else None
         jobs = []
         for k in mine_k:
             tid = ids[k]

@@ -165,9 +165,18 @@ class SilhouetteView:
 
     def __init__(self, masks: list, cameras: list, reach: float = 0.6, min_pixels: int = 20):
         self.rays = [_rays(c, m.shape[1], m.shape[0]) for c, m in zip(cameras, masks)]
-        self.masks = [r.undistort(np.asarray(m, bool)) for r, m in zip(self.rays, masks)]
+        self._sent = masks
+        self._masks = None
         self.reach = float(reach)
         self.min_pixels = int(min_pixels)
+
+    @property
+    def masks(self) -> list:
+        """The silhouettes in the undistorted pinhole views, made when first asked for (a
+        pose shard none of whose people is in the frame never asks: issue 26)."""
+        if self._masks is None:
+            self._masks = [r.undistort(np.asarray(m, bool)) for r, m in zip(self.rays, self._sent)]
+        return self._masks
 
     def people(self, positions: np.ndarray, spacing: float = 0.0, wanted=None) -> list:
         """Per track (``positions (T, 3)``) its :class:`PersonSilhouettes` (``wanted``: the
