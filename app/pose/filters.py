@@ -19,6 +19,7 @@ alpha_H = 0.5, alpha_S = 0.8 between models (Eq. 7.26).
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -252,7 +253,7 @@ class LimbSwitch:
         self.rng = rng if rng is not None else np.random.default_rng(1)
         self.active = {unit: True for unit in LIMBS}
         self.scouts: dict[str, np.ndarray] = {}
-        self.events: list[tuple[str, bool]] = []
+        self.events: deque = deque(maxlen=1000)   # (unit, on) of the last switches (a log, bounded)
         self.last: dict[str, tuple] = {}     # unit -> (spread deg, occupancy) of the last check
 
     def _tracked(self, unit) -> bool:

@@ -45,18 +45,21 @@ The tracker reports confirmed targets only; ids are never reused otherwise.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, fields
 
 import numpy as np
 
 from app.tracking import columns
-from app.tracking.blobs import CLASSIFIER_FEATURES, component_features, features_from_sums
+from app.tracking.blobs import CLASSIFIER_FEATURES, features_from_sums
 from app.tracking.naive import NaiveTarget
 from app.tracking.particle import ParticleTarget
 from app.tracking.scene import SceneFrame, bhattacharyya
 from app.tracking.sparse import SparseTarget
 
 __all__ = ["TrackerParams", "MultiTracker", "FILTERS"]
+
+EVENTS_KEPT = 1000   # MultiTracker.events: the last this many track starts and ends
 
 #: filter name -> (target class, uses colour)
 FILTERS = {
@@ -159,8 +162,9 @@ class MultiTracker:
         self.next_id = 1
         self.deleted = 0
         self.ended: list[tuple] = []   # (frame, id, position, reference histogram) of recently ended tracks
-        #: (frame, "new" | "end", id, why, position) of every track created or ended
-        self.events: list[tuple] = []
+        #: (frame, "new" | "end", id, why, position) of the last ``EVENTS_KEPT`` tracks created
+        #: or ended (a log, bounded: a room that runs for weeks starts and ends tracks for good)
+        self.events: deque = deque(maxlen=EVENTS_KEPT)
         self._col_first = None
         self._scratch = None
         #: the ghost test's view of one frame (:meth:`_ghost`): the voxels of the tracked
