@@ -42,6 +42,7 @@ from app.pose.coverage import CoverageScorer, crown_expectation
 from app.pose.facing import FacingVote, floor_footprint, frame_vote
 from app.pose.model import BodyModel, neutral_state, stature_from_top
 from app.pose.observation import observe
+from app.pose.selection import posed_tracks
 from app.keypoints.fusion import keypoint_hands
 
 __all__ = ["PoseSettings", "PersonPose", "PoseEstimator", "METHODS", "assign_voxels"]
@@ -177,8 +178,7 @@ def assign_voxels(centres: np.ndarray, positions: np.ndarray, reach: float, want
     owner = np.full(len(centres), -1, dtype=np.int64)
     if len(positions) == 0 or len(centres) == 0:
         return owner
-    pick = np.zeros(len(positions), np.bool_)
-    pick[np.arange(len(positions)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+    pick = posed_tracks(len(positions), wanted)
     if not pick.any():
         return owner
     _owners(np.ascontiguousarray(centres, np.float64), np.ascontiguousarray(positions, np.float64), float(reach),

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["SUBSETS", "pose_subset", "within_reach", "pose_frame", "silhouette_view", "PosedFrame"]
+__all__ = ["SUBSETS", "pose_subset", "posed_tracks", "within_reach", "pose_frame", "silhouette_view", "PosedFrame"]
 
 SUBSETS = ("consensus", "tolerant", "all")
 
@@ -65,6 +65,14 @@ def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.nd
     return keep
 
 
+def posed_tracks(count: int, wanted=None) -> np.ndarray:
+    """Boolean mask of ``count`` tracks: those in ``wanted`` (indices; None: every track),
+    the people a pose worker poses (issue 26: a shard's share)."""
+    pick = np.zeros(int(count), np.bool_)
+    pick[np.arange(int(count)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+    return pick
+
+
 def within_reach(vox, positions: np.ndarray, reach: float, wanted=None) -> np.ndarray:
     """Boolean mask of the voxels of ``vox`` (a :class:`~app.messages.Voxels`) within
     ``reach`` (m, in the floor plane) of a track of ``positions (T, 3)``: of those in
@@ -76,8 +84,7 @@ def within_reach(vox, positions: np.ndarray, reach: float, wanted=None) -> np.nd
     leaves out a voxel the ownership would give."""
     idx = np.ascontiguousarray(vox.indices).reshape(-1, 3)
     positions = np.ascontiguousarray(positions, np.float64).reshape(-1, 3)
-    pick = np.zeros(len(positions), np.bool_)
-    pick[np.arange(len(positions)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+    pick = posed_tracks(len(positions), wanted)
     out = np.zeros(len(idx), np.bool_)
     if pick.any() and len(idx):
         _within_reach(idx, np.asarray(vox.origin, np.float64), float(vox.voxel_size), positions[pick],

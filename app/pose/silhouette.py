@@ -188,8 +188,8 @@ class SilhouetteView:
         on how near the camera stands or how fine it is."""
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         T, C = len(positions), len(self.masks)
-        pick = np.zeros(T, np.bool_)
-        pick[np.arange(T) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+        from app.pose.selection import posed_tracks
+        pick = posed_tracks(T, wanted)
         H = max((m.shape[0] for m in self.masks), default=1)
         W = max((m.shape[1] for m in self.masks), default=1)
         grids = np.zeros((T, C, H, W), np.uint8)
