@@ -40,9 +40,8 @@ from app.pose.flesh import build_flesh
 from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer, crown_expectation
 from app.pose.facing import FacingVote, floor_footprint, frame_vote
-from app.pose.model import BodyModel, neutral_state, stature_from_top
+from app.pose.model import BodyModel, neutral_state, posed_tracks, stature_from_top
 from app.pose.observation import observe
-from app.pose.selection import posed_tracks
 from app.keypoints.fusion import keypoint_hands
 
 __all__ = ["PoseSettings", "PersonPose", "PoseEstimator", "METHODS", "assign_voxels"]

@@ -339,3 +339,11 @@ class BodyModel:
     def within_limits(states, tol: float = 1e-9) -> bool:
         s = np.asarray(states)
         return bool(np.all(s >= LIMITS_LO - tol) and np.all(s <= LIMITS_HI + tol))
+
+
+def posed_tracks(count: int, wanted=None) -> np.ndarray:
+    """Boolean mask of ``count`` tracks: those in ``wanted`` (indices; None: every track),
+    the people a pose worker poses (issue 26: a shard's share)."""
+    pick = np.zeros(int(count), np.bool_)
+    pick[np.arange(int(count)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
+    return pick

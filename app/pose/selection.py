@@ -28,7 +28,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["SUBSETS", "pose_subset", "posed_tracks", "within_reach", "pose_frame", "silhouette_view", "PosedFrame"]
+from app.pose.model import posed_tracks
+
+__all__ = ["SUBSETS", "pose_subset", "within_reach", "pose_frame", "silhouette_view", "PosedFrame"]
 
 SUBSETS = ("consensus", "tolerant", "all")
 
@@ -63,14 +65,6 @@ def pose_subset(misses: np.ndarray | None, centres: np.ndarray, positions: np.nd
     keep = keep.copy()
     keep[where] = True
     return keep
-
-
-def posed_tracks(count: int, wanted=None) -> np.ndarray:
-    """Boolean mask of ``count`` tracks: those in ``wanted`` (indices; None: every track),
-    the people a pose worker poses (issue 26: a shard's share)."""
-    pick = np.zeros(int(count), np.bool_)
-    pick[np.arange(int(count)) if wanted is None else np.asarray(list(wanted), np.int64)] = True
-    return pick
 
 
 def within_reach(vox, positions: np.ndarray, reach: float, wanted=None) -> np.ndarray:

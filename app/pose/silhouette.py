@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments, posed_tracks
 
 __all__ = ["CameraRays", "SilhouetteView", "PersonSilhouettes", "silhouette_coverage", "coarsening", "warm_up"]
 
@@ -188,7 +188,6 @@ class SilhouetteView:
         on how near the camera stands or how fine it is."""
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         T, C = len(positions), len(self.masks)
-        from app.pose.selection import posed_tracks
         pick = posed_tracks(T, wanted)
         H = max((m.shape[0] for m in self.masks), default=1)
         W = max((m.shape[1] for m in self.masks), default=1)
