@@ -289,9 +289,9 @@ class Launcher:
             session = self._session = open_session(self.layout.bus.for_worker(), mode="client")
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
-        subs = [session.declare_subscriber(keys.stats(), self._on_control),
-                session.declare_subscriber(keys.eos(), self._on_control),
-                session.declare_subscriber(keys.heartbeat(), self._on_control)]
+        # the layout's workers' keys only: what others publish never reaches the launcher
+        subs = [session.declare_subscriber(key(name), self._on_control)
+                for name in sorted(self.layout.names) for key in (keys.stats, keys.eos, keys.heartbeat)]
         if self.hosts.remote or self.host is not None:
             subs.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -775,10 +775,15 @@ class Worker(Restarts):
             self.setup()
             self.setup_s = time.time() - t0   # tables, background models, kernels: start-up, reported apart
             self.compiles.install(only_if_loaded=True)   # numba imported by the set-up
-            self._subs.append(self.session.declare_subscriber(self.keys.eos(), self._on_control))
+            # ends of stream (and stats) under the names of the workers whose ends (and figures)
+            # this stage takes, never a wildcard: what another process publishes elsewhere on
+            # the bus, junk or a stage that is not in the layout, then never reaches it
+            takes_stats = "stats" in self.CONSUMES   # (an end of stream carries the final figures)
+            for name in sorted(self._members if takes_stats else self._wait_for):
+                self._subs.append(self.session.declare_subscriber(self.keys.eos(name), self._on_control))
+                if takes_stats:
+                    self._subs.append(self.session.declare_subscriber(self.keys.stats(name), self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
-            if "stats" in self.CONSUMES:
-                self._subs.append(self.session.declare_subscriber(self.keys.stats(), self._on_control))
             # an unpaced or offline source sends frames as fast as the stages acknowledge them
             self._ack, self._acked, self._ack_epoch = None, -1, None
             if (self.lossless or not self.layout.run.pace) and self.acknowledges(self.spec, self.layout):

@@ -5,6 +5,10 @@
   in ``--out``. ``--sweep voxel=2,3,4,5`` (or ``--sweep worker.param=a,b``) repeats it
   and tabulates RTF against the parameter.
 - ``smartroom bench bus``: codec + zenoh latency and throughput between two processes.
+- ``smartroom bench flood``: the pipeline quiet and beside junk on every key of the room
+  at ``--flood-rate`` messages a second (default 20,000) from another process, in each of
+  ``--modes``: what the flood costs in RTF, frames delivered, messages refused, and whether
+  the unpaced (offline) run wrote the same tracks and poses (:mod:`app.benchmarks.flood`).
 - ``smartroom bench grabber``: decode, reduce and encode cost per camera at 640x480 and
   1920x1088, and a set of four cameras decoded serially and in parallel.
 - ``smartroom bench reconstruction``: segmentation + reconstruction + colouring + surface
@@ -40,7 +44,7 @@ from pathlib import Path
 from app.commands.options import add_pipeline_arguments, resolve_layout, resolve_out, resolve_source
 
 TARGETS = ("pipeline", "bus", "reconstruction", "simulate", "pose", "tracking", "grabber", "segmentation", "accuracy",
-           "keypoints", "streaming", "marker")
+           "keypoints", "streaming", "marker", "flood")
 
 
 def add_arguments(p) -> None:
@@ -93,6 +97,8 @@ def add_arguments(p) -> None:
     p.add_argument("--people", type=int, default=6, help="streaming: people per frame (default 6)")
     p.add_argument("--stream-fps", type=float, default=60.0, help="streaming: frame rate (default 60)")
     p.add_argument("--protocols", default="osc,vmc,lsl", help="streaming: protocols (default osc,vmc,lsl)")
+    p.add_argument("--flood-rate", type=float, default=20000.0,
+                   help="flood: junk messages a second on the room's keys (default 20000)")
     p.add_argument("--seeds", default="1000:1020",
                    help="accuracy: random scenes A:B (A to B-1) or a list; tune below 1000, report 1000 and up "
                         "(default 1000:1020)")
@@ -147,6 +153,25 @@ def _pipeline(args, out: Path) -> dict:
             cells += f"{r.get('rtf') or 0:>14.2f}{(r.get('end_to_end_latency_ms') or {}).get('p95', 0):>16.0f}"
         print(f"{label:<20}{cells}")
     return {"sweep": args.sweep, "runs": {label: r for label, r in rows}}
+
+
+def _flood(args, out: Path) -> dict:
+    from app.benchmarks import flood
+    from app.errors import InputError
+
+    layout = resolve_layout(args)
+    layout.workers = [w for w in layout.workers if w.kind not in ("monitor", "viewer")]
+    run = resolve_source(args)
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not modes or set(modes) - {"unpaced", "paced"}:
+        raise InputError(f"--modes {args.modes!r}: unpaced, paced or both")
+    if not 0 < args.flood_rate <= 1e6:
+        raise InputError(f"--flood-rate {args.flood_rate:g}: must be above 0 and at most 1,000,000")
+    print(f"smartroom bench flood: {run.frames} frames of {run.recording}, junk at {args.flood_rate:g} msg/s; "
+          f"runs in {out}", file=sys.stderr)
+    result = flood.measure(layout, run, out, args.flood_rate, modes)
+    print(flood.table(result))
+    return result
 
 
 def _reconstruction(args, out: Path) -> dict:
@@ -393,6 +418,6 @@ def main(args) -> int:
     figures = {"bus": _bus, "pipeline": _pipeline, "reconstruction": _reconstruction, "simulate": _simulate,
                "pose": _pose, "tracking": _tracking, "grabber": _grabber,
                "segmentation": _segmentation, "accuracy": _accuracy, "keypoints": _keypoints,
-               "streaming": _streaming, "marker": _marker}[args.target](args, out)
+               "streaming": _streaming, "marker": _marker, "flood": _flood}[args.target](args, out)
     (out / f"bench_{args.target}.json").write_text(json.dumps(figures, indent=1))
     return 0
