@@ -13,7 +13,8 @@ Definitions (CONTRACT §2, extended):
 - latency: wall-clock time from the frame's capture to the stage's output (over the
   last ``RECENT`` outputs while running, over all of them in the final figures, up to
   the last :data:`KEPT_MS` to 2 x :data:`KEPT_MS`: a ledger's memory and the cost of saving it
-  do not grow with the days a room runs, see :class:`FrameSet`).
+  do not grow with the days a room runs, see :class:`FrameSet`; a run longer than about
+  45 minutes at 25 fps has the final percentiles of its last 45 to 90 minutes).
 """
 from __future__ import annotations
 
@@ -31,7 +32,10 @@ __all__ = ["StageLedger", "FrameSet", "summarise", "steady_fps", "percentiles"]
 WINDOW_S = 2.0
 RECENT = 5000   # outputs (~3 min at 25 fps) behind the running latency percentiles
 HORIZON = 1024  # frame numbers a ledger keeps one by one (older ones are folded into counts)
-KEPT_MS = 1 << 20   # latencies and processing times kept for the final percentiles (~11 h at 25 fps)
+#: latencies and processing times kept for the final percentiles (~44 min at 25 fps): at most
+#: 2 x 2 x 8 x KEPT_MS bytes (2 MB) a ledger, reached in 1.5 h at 25 fps (it was 32 MB, reached
+#: after 22 h: the memory of a room's workers grew for a day)
+KEPT_MS = 1 << 16
 MAX_ABSENT = 64     # absent frames remembered below a frame set's folded base
 
 

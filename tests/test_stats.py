@@ -1,7 +1,7 @@
 """Stage accounting and the pipeline summary (RTF, Eq. 4.27)."""
 import json
 
-from app.stats import FrameSet, StageLedger, summarise
+from app.stats import KEPT_MS, FrameSet, StageLedger, summarise
 from workers.base import Inbox
 
 
@@ -41,6 +41,7 @@ def _live_ledger(frames: int) -> StageLedger:
         if f % 7 == 3:
             continue
         led.received(f, stamp=clock.now)
+        led.processed(0.001, f)
         if f % 3:
             led.emitted(f, stamp=clock.now)
     return led
@@ -54,6 +55,9 @@ def test_a_ledger_state_costs_the_same_after_a_million_frames():
     size = {n: len(json.dumps(led.state())) for n, led in (("small", small), ("large", large))}
     assert size["large"] <= 2 * size["small"], size
     assert len(large.seen.bits) + len(large.done.bits) <= 2 * 1536 + 2048
+    # the latencies and processing times behind the final percentiles are bounded too
+    assert len(large.latency_ms) <= 2 * KEPT_MS and len(large.process_ms) <= 2 * KEPT_MS
+    assert min(len(large.latency_ms), len(large.process_ms)) >= KEPT_MS   # (at least the run's last KEPT_MS)
     fig = large.figures(final=True, expected=1_000_000)
     arrived = 1_000_000 - sum(1 for f in range(1_000_000) if f % 7 == 3)
     kept = sum(1 for f in range(1_000_000) if f % 7 != 3 and f % 3)
