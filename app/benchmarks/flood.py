@@ -98,7 +98,8 @@ def flood(connect: str, keys: list[str], rate: float, seconds: float, frames: in
         span = time.monotonic() - t0
     finally:
         session.close()
-    return {"sent": sent, "seconds": round(span, 3), "rate": round(sent / span, 1) if span else 0.0}
+    return {"sent": sent, "seconds": round(span, 3), "rate": round(sent / span, 1) if span else 0.0,
+            "cpu_s": round(time.process_time(), 3)}
 
 
 def _wait_for_hub(connect: str, timeout: float, stop=None) -> bool:
@@ -127,6 +128,12 @@ def _outputs_equal(a, b) -> bool | None:
         if fa.exists() or fb.exists():
             same = (same is not False) and fa.exists() and fb.exists() and fa.read_bytes() == fb.read_bytes()
     return same
+
+
+def _workers_cpu(stats: dict) -> float:
+    """CPU seconds of the run's workers (each from its first input to its last output)."""
+    return sum(float(w.get("cpu_ms_per_frame") or 0.0) * max(int(w.get("frames_in") or 0), int(w.get("frames_out") or 0))
+               for w in stats.get("workers", {}).values()) / 1e3
 
 
 def _refused(stats: dict) -> int:
@@ -169,9 +176,11 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
                      "--workers", ",".join(w.name for w in lay.workers), "--rate", str(rate),
                      "--seconds", "86400", "--frames", str(run.frames or 250)],
                     stdout=subprocess.PIPE, text=True)
+            cpu0 = time.process_time()
             try:
                 report = profile_run(lay, r, out / label / mode, progress=progress)
             finally:
+                hub_cpu = time.process_time() - cpu0
                 sent = None
                 if flooder is not None:
                     flooder.terminate()
@@ -184,7 +193,12 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
                           "complete": bool(stats.get("complete")), "wall_s": report["wall_s"],
                           "frames_out": (report["stages"].get(final) or {}).get("frames_out"),
                           "dropped": sum(int(s.get("frames_dropped") or 0) for s in report["stages"].values()),
-                          "refused": _refused(stats), "junk": sent}
+                          "refused": _refused(stats), "junk": sent,
+                          # CPU seconds over the run: the launcher (this process: the hub routes
+                          # every message), the workers (from their first input to their last
+                          # output), the flooding process (all of its life)
+                          "cpu_s": {"hub": round(hub_cpu, 2), "workers": round(_workers_cpu(stats), 2),
+                                    "flooder": (sent or {}).get("cpu_s", 0.0)}}
         q, f = row["quiet"], row["flooded"]
         row["rtf_cost"] = round(1.0 - f["rtf"] / q["rtf"], 4) if q["rtf"] and f["rtf"] is not None else None
         row["same_results"] = _outputs_equal(out / "quiet" / mode, out / "flooded" / mode)
@@ -204,6 +218,9 @@ def table(result: dict) -> str:
         lines.append(f"{mode:<10}{q['rtf'] or 0:>10.3f}{f['rtf'] or 0:>9.3f}{100 * (r['rtf_cost'] or 0):>6.1f}%"
                      f"{q['frames_out'] or 0:>10}{f['frames_out'] or 0:>9}{f['dropped']:>9}"
                      f"{junk.get('rate', 0):>9.0f}{junk.get('sent', 0):>9}{f['refused']:>9}{same:>14}")
+        cq, cf = q["cpu_s"], f["cpu_s"]
+        lines.append(f"  CPU s quiet / flooded: hub {cq['hub']:.1f} / {cf['hub']:.1f}, workers {cq['workers']:.1f} / "
+                     f"{cf['workers']:.1f}, flooder {cf['flooder']:.1f}; wall {q['wall_s']:.1f} / {f['wall_s']:.1f} s")
         for label, x in (("quiet", q), ("flooded", f)):
             if x["exit_code"] != 0 or not x["complete"]:
                 lines.append(f"  {mode} {label}: exit {x['exit_code']}, complete {x['complete']}")
