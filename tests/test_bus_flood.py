@@ -152,3 +152,24 @@ def test_a_forged_epoch_sent_before_the_stream_holds_no_key(long_recording, tmp_
     rec = stats["workers"]["reconstruction"]
     assert sum(n for k, n in rec["rejected"].items() if k == "mask/cam0: epoch before the run") > 500
     assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))
+
+
+def test_the_flood_s_junk_is_refused_by_the_message_codec_and_covers_every_key():
+    """What `smartroom bench flood` sends: nothing a worker may accept (a payload that
+    decodes is a heartbeat from a worker outside the layout), on every key of the room."""
+    from app.benchmarks.flood import junk_payloads
+    from app.messages import Heartbeat, MessageError, decode
+
+    decoded = []
+    for payload in junk_payloads(250):
+        try:
+            msg = decode(payload)
+            msg.validate()
+            decoded.append(msg)
+        except MessageError:
+            pass
+    assert decoded and all(isinstance(m, Heartbeat) and m.worker.startswith("zz") for m in decoded)
+    keys = Keys("r")
+    got = set(room_keys("r", ["cam0"], ["pose"]))
+    assert {keys.frame("cam0"), keys.mask("cam0"), keys.voxels(), keys.blobs(), keys.tracks(), keys.poses(),
+            keys.stats("pose"), keys.eos("pose"), keys.ack("pose"), keys.heartbeat("pose")} <= got
