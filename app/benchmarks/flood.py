@@ -26,6 +26,7 @@ import dataclasses
 import json
 import signal
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -75,7 +76,8 @@ def junk_payloads(frames: int, seed: int = 0) -> list[bytes]:
 def flood(connect: str, keys: list[str], rate: float, seconds: float, frames: int = 250,
           stop=None) -> dict:
     """Publish junk round-robin over ``keys`` at ``rate`` messages a second for ``seconds``
-    (or until ``stop()`` is true); ``{"sent", "seconds", "rate"}``."""
+    (or until ``stop()`` is true); ``{"sent", "seconds", "rate", "cpu_s"}`` (``cpu_s``: this
+    process's CPU seconds, the flooder's own where it runs in a process of its own)."""
     import zenoh
 
     if not _wait_for_hub(connect, HUB_WAIT_S, stop):
@@ -120,8 +122,6 @@ def _wait_for_hub(connect: str, timeout: float, stop=None) -> bool:
 
 def _outputs_equal(a, b) -> bool | None:
     """Whether two runs wrote the same tracks and poses (None where neither wrote them)."""
-    from pathlib import Path
-
     same = None
     for name in ("tracks.jsonl", "poses.jsonl"):
         fa, fb = Path(a) / name, Path(b) / name
@@ -137,7 +137,7 @@ def _workers_cpu(stats: dict) -> float:
 
 
 def _refused(stats: dict) -> int:
-    """Messages the workers and the launcher refused (counted in stats.json)."""
+    """Messages the workers refused (their ``rejected`` counts in stats.json)."""
     n = 0
     for w in stats.get("workers", {}).values():
         n += sum(int(v) for v in (w.get("rejected") or {}).values())
@@ -151,7 +151,6 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
     depend on load) whether the flooded run wrote the same tracks and poses."""
     import subprocess
     import sys
-    from pathlib import Path
 
     from app.benchmarks.pipeline import MODES, profile_run
     from app.bus import free_port
