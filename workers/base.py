@@ -537,6 +537,9 @@ class Worker(Restarts):
 
     def _on_control(self, sample) -> None:
         key = str(sample.key_expr)
+        if self.keys.last(key) not in self._members:   # told from the key, before decoding
+            self.reject(key, "not a worker of the layout")   # any process may publish on the bus
+            return
         try:
             msg = decode_sample(sample)
             msg.validate()
@@ -775,14 +778,17 @@ class Worker(Restarts):
             self.setup()
             self.setup_s = time.time() - t0   # tables, background models, kernels: start-up, reported apart
             self.compiles.install(only_if_loaded=True)   # numba imported by the set-up
-            # ends of stream (and stats) under the names of the workers whose ends (and figures)
-            # this stage takes, never a wildcard: what another process publishes elsewhere on
-            # the bus, junk or a stage that is not in the layout, then never reaches it
-            takes_stats = "stats" in self.CONSUMES   # (an end of stream carries the final figures)
-            for name in sorted(self._members if takes_stats else self._wait_for):
-                self._subs.append(self.session.declare_subscriber(self.keys.eos(name), self._on_control))
-                if takes_stats:
-                    self._subs.append(self.session.declare_subscriber(self.keys.stats(name), self._on_control))
+            # ends of stream: a stage takes its upstream's only, and listens under their names
+            # (junk on another worker's key never reaches it); a stage that takes the stats
+            # takes every worker's (an end carries the final figures), on one subscription
+            # each for ends and stats (a subscription per name costs a thread's wake-up
+            # per message), and tells a name outside the layout from the key
+            if "stats" in self.CONSUMES:
+                ends = [self.keys.eos(), self.keys.stats()]
+            else:
+                ends = [self.keys.eos(name) for name in sorted(self._wait_for)]
+            for key in ends:
+                self._subs.append(self.session.declare_subscriber(key, self._on_control))
             self._eos_since = time.monotonic()   # ends sent before this were missed (the launcher repeats them)
             # an unpaced or offline source sends frames as fast as the stages acknowledge them
             self._ack, self._acked, self._ack_epoch = None, -1, None

@@ -239,8 +239,8 @@ class SourceFlow:
     def hold(self, index: int) -> float:
         """Rules 2-6 for frame ``index``; the seconds waited."""
         w = self.worker
-        if self._sub is None:   # the acknowledging stages' keys only (junk elsewhere never reaches it)
-            self._sub = [w.session.declare_subscriber(w.keys.ack(n), self._on_ack) for n in sorted(self.control.stages)]
+        if self._sub is None:
+            self._sub = w.session.declare_subscriber(w.keys.ack(), self._on_ack)
         return self.control.wait(index, lambda: set(w.alive), lambda: w.stopping)
 
     def _on_ack(self, sample) -> None:
@@ -248,6 +248,9 @@ class SourceFlow:
         from app.messages import Ack, MessageError
 
         w = self.worker
+        if w.keys.last(sample.key_expr) not in self.control.stages:   # told from the key, before decoding
+            w.reject(str(sample.key_expr), "acknowledgement of another stream")
+            return
         try:
             msg = decode_sample(sample)
             msg.validate()
@@ -260,9 +263,9 @@ class SourceFlow:
         self.control.acknowledge(msg.worker, msg.frame, msg.out)
 
     def close(self) -> None:
-        for sub in self._sub or ():
+        if self._sub is not None:
             try:
-                sub.undeclare()
+                self._sub.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
-        self._sub = None
+            self._sub = None
