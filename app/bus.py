@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 
 import zenoh
 
-from app.bus_section import AuthConfig, TlsConfig, check_endpoints
+from app.bus_section import AclConfig, AuthConfig, TlsConfig, check_endpoints
 from app.errors import InputError
 from app.messages import Message, MessageError, decode
 
@@ -44,6 +44,7 @@ class BusConfig:
     shm: bool = True    # zenoh's shared-memory transport between processes of one host
     tls: TlsConfig | None = None
     auth: AuthConfig | None = None
+    acl: AclConfig | None = None    # the hub's access control (app.bus_acl), made from the layout
 
     def to_zenoh(self, mode: str = "peer") -> zenoh.Config:
         """zenoh's configuration of a session in ``mode``: ``router`` (the hub), ``client``
@@ -76,13 +77,17 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def open_session(bus: BusConfig, mode: str = "peer") -> zenoh.Session:
+def open_session(bus: BusConfig, mode: str = "peer", access_control: dict | None = None) -> zenoh.Session:
     """Open a zenoh session (``mode``: see :meth:`BusConfig.to_zenoh`); a bad endpoint
     (syntax, a host that does not resolve, an address that cannot be bound, a hub that
-    cannot be reached) is an :class:`InputError` of one line, not a zenoh error."""
+    cannot be reached) is an :class:`InputError` of one line, not a zenoh error.
+    ``access_control``: zenoh's ``access_control`` section (the hub's, :mod:`app.bus_acl`)."""
     check_endpoints(bus.listen, bus.connect, bus.tls, resolve=True)
     try:
-        return zenoh.open(bus.to_zenoh(mode))
+        conf = bus.to_zenoh(mode)
+        if access_control is not None:
+            conf.insert_json5("access_control", json.dumps(access_control))
+        return zenoh.open(conf)
     except zenoh.ZError as exc:
         # zenoh appends " at /path/file.rs:NN." to each cause: keep the words, drop the places
         reason = re.sub(r"\s+at /\S+?\.rs:\d+\.?", "", " ".join(str(exc).split())) or type(exc).__name__

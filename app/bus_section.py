@@ -27,12 +27,14 @@ import ipaddress
 import os
 import re
 import socket
+import ssl
 from dataclasses import dataclass
 from pathlib import Path
 
 from app.errors import InputError
 
-__all__ = ["TlsConfig", "AuthConfig", "PROTOCOLS", "endpoint_problem", "check_endpoints", "parse_bus"]
+__all__ = ["TlsConfig", "AuthConfig", "AclConfig", "PROTOCOLS", "endpoint_problem", "check_endpoints", "parse_bus",
+           "certificate_name"]
 
 PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream")
 SECURE = ("tls", "quic")           # link protocols that use the transport/link/tls settings
@@ -71,6 +73,19 @@ class AuthConfig:
     def to_zenoh(self) -> dict:
         password = _read_text(self.password_file, "bus.auth.password_file", InputError).strip()
         return {"user": self.user, "password": password, "dictionary_file": self.dictionary_file}
+
+
+@dataclass
+class AclConfig:
+    """zenoh's access control on the hub, made from the layout (:mod:`app.bus_acl`): a
+    host may publish only what the layout's workers on it publish, told apart by the
+    common name of the certificate it shows (mutual TLS); ``readers``: further common
+    names that may subscribe and publish nothing (a viewer's or a streaming client's)."""
+
+    readers: list = None
+
+    def __post_init__(self):
+        self.readers = list(self.readers or [])
 
 
 def endpoint_problem(endpoint, role: str = "listen") -> str | None:
@@ -209,7 +224,7 @@ def parse_bus(value, path: str, error=InputError) -> dict:
     """The ``bus`` section of the layout file ``path``, checked: the fields of an
     :class:`app.bus.BusConfig` (the config loader builds it; this module knows no bus)."""
     value = value or {}
-    known = ("listen", "connect", "multicast", "shm", "tls", "auth")
+    known = ("listen", "connect", "multicast", "shm", "tls", "auth", "acl")
     if not isinstance(value, dict):
         raise error(f"{path}: bus must be a mapping with {', '.join(known)}")
     unknown = set(value) - set(known)
@@ -218,6 +233,7 @@ def parse_bus(value, path: str, error=InputError) -> dict:
     folder = Path(path).parent
     tls = parse_tls(value["tls"], folder, path, error) if value.get("tls") is not None else None
     auth = parse_auth(value["auth"], folder, path, error) if value.get("auth") is not None else None
+    acl = parse_acl(value.get("acl"), tls, path, error)
     endpoints = {}
     for key in ("listen", "connect"):
         v = value.get(key)
@@ -228,4 +244,36 @@ def parse_bus(value, path: str, error=InputError) -> dict:
     check_endpoints(listen, endpoints["connect"], tls, error=error, prefix=f"{path}: ")
     return dict(listen=listen, connect=endpoints["connect"],
                 multicast=_flag(value, "multicast", False, "bus.multicast", path, error),
-                shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth)
+                shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth, acl=acl)
+
+
+def parse_acl(value, tls: TlsConfig | None, where: str, error) -> AclConfig | None:
+    """``acl: true`` or ``acl: {readers: [NAME, ...]}`` (false or absent: none). zenoh
+    tells the hosts apart by their certificates, so it needs ``tls`` with ``mtls``."""
+    if value is None or value is False:
+        return None
+    if value is True:
+        value = {}
+    d = _mapping(value, {"readers"}, set(), "bus.acl", where, error)
+    readers = d.get("readers") or []
+    if not isinstance(readers, list) or not all(isinstance(r, str) and r and r.strip() == r for r in readers):
+        raise error(f"{where}: bus.acl.readers must be a list of certificate common names")
+    if tls is None or not tls.mtls:
+        raise error(f"{where}: bus.acl needs bus.tls with mtls: true (the hub tells hosts apart by the "
+                    "certificates they show)")
+    certificate_name(tls.cert, error, where)   # the hub's host is the one its certificate names
+    return AclConfig(readers=readers)
+
+
+def certificate_name(path: str, error=InputError, where: str = "") -> str:
+    """The common name (CN) of the PEM certificate at ``path`` (one line if it has none)."""
+    prefix = f"{where}: " if where else ""
+    try:
+        subject = ssl._ssl._test_decode_cert(str(path))["subject"]   # CPython's own PEM reader
+    except (OSError, ssl.SSLError, AttributeError, KeyError, ValueError) as exc:
+        raise error(f"{prefix}bus.tls.cert: {path}: cannot read its subject ({exc})") from None
+    names = [v for rdn in subject for k, v in rdn if k == "commonName"]
+    if not names:
+        raise error(f"{prefix}bus.tls.cert: {path}: the certificate names no common name (CN); bus.acl tells "
+                    "hosts apart by it")
+    return names[0]

@@ -242,15 +242,15 @@ class Launcher:
                 self._signal(p, signal.SIGTERM)
 
     def _on_control(self, sample) -> None:
+        name = Keys.last(sample.key_expr)
+        if name not in self._members:   # any process may publish on the bus: not a stage of this run
+            return                      # (told from the key, before anything is decoded)
         try:
             msg = decode_sample(sample)
             msg.validate()
         except MessageError:
             return
-        name = Keys.last(sample.key_expr)
         if getattr(msg, "worker", None) != name:
-            return
-        if name not in self._members:   # any process may publish on the bus: not a stage of this run
             return
         if isinstance(msg, Heartbeat):
             with self._lock:
@@ -284,14 +284,18 @@ class Launcher:
         """Start everything and wait for the end; the exit code of the run."""
         self.started = time.time()
         if self.host is None:
-            session = self._session = open_session(self.hub_bus, mode="router")
+            acl = None
+            if self.hub_bus.acl is not None:   # who may publish what, from the layout (app.bus_acl)
+                from app.bus_acl import certificate_name, room_access_control
+                acl = room_access_control(self.layout, certificate_name(self.hub_bus.tls.cert))
+            session = self._session = open_session(self.hub_bus, mode="router", access_control=acl)
         else:
             session = self._session = open_session(self.layout.bus.for_worker(), mode="client")
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
-        # the layout's workers' keys only: what others publish never reaches the launcher
-        subs = [session.declare_subscriber(key(name), self._on_control)
-                for name in sorted(self.layout.names) for key in (keys.stats, keys.eos, keys.heartbeat)]
+        subs = [session.declare_subscriber(keys.stats(), self._on_control),
+                session.declare_subscriber(keys.eos(), self._on_control),
+                session.declare_subscriber(keys.heartbeat(), self._on_control)]
         if self.hosts.remote or self.host is not None:
             subs.append(session.liveliness().declare_subscriber(keys.alive(), self._on_alive, history=True))
         previous = {s: signal.signal(s, lambda *_: self.request_stop()) for s in (signal.SIGINT, signal.SIGTERM)}

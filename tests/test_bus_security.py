@@ -34,7 +34,8 @@ pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl
 def certs(tmp_path_factory) -> Path:
     """room/ca.pem signs hub and cam; other/ca.pem (another CA) signs intruder."""
     d = tmp_path_factory.mktemp("tls")
-    for folder, host in (("room", "hub"), ("room", "cam"), ("other", "intruder")):
+    for folder, host in (("room", "hub"), ("room", "cam"), ("other", "intruder"), ("room", "camera-pc"),
+                         ("room", "stranger"), ("room", "viewer-pc")):
         subprocess.run(["sh", str(MAKE_CERTS), str(d / folder), host], check=True, capture_output=True, timeout=30)
     return d
 
@@ -210,6 +211,10 @@ BAD_BUS = [
     ({"connect": ["tcp/10.0.0.1:0"]}, "bus.connect", "port 0"),
     ({"connect": "tcp/10.0.0.1:7447"}, "bus.connect", "must be a list"),
     ({"multicast": "no"}, "bus.multicast", "true or false"),
+    (_bus_with(acl={"readers": "viewer-pc"}), "bus.acl.readers", "list of certificate common names"),
+    (_bus_with(acl={"writers": ["x"]}), "bus.acl", "unknown key 'writers'"),
+    (_bus_with(acl=True, tls__mtls=False), "bus.acl", "needs bus.tls with mtls: true"),
+    ({"acl": True}, "bus.acl", "needs bus.tls with mtls: true"),
 ]
 
 
@@ -325,3 +330,121 @@ def test_a_publisher_waits_until_the_bus_routes_its_key_to_a_subscriber():
         for s in (late, sender, hub):
             if s is not None:
                 s.close()
+
+
+# -- the hub's access control (bus.acl) -------------------------------------------------
+
+def test_the_hub_lets_each_host_publish_only_what_its_workers_publish(room_files, certs):
+    """bus.acl: the hub (zenoh's access control, made from the layout) tells hosts apart by
+    the certificates they show: the camera PC may publish its grabber's frames and its
+    segmentation's masks, and their stats and ends, but not voxels nor another stage's
+    stats or end of stream; a room certificate of a host outside the layout publishes
+    nothing; a reader subscribes and publishes nothing; the hub's own host publishes all."""
+    from app.bus_acl import room_access_control
+
+    port = free_port()
+    layout_doc = {"room": "r", "bus": {**SECURE_BUS, "listen": [f"tls/127.0.0.1:{port}"],
+                                      "acl": {"readers": ["viewer-pc"]}},
+                  "workers": [{"name": "grabber", "kind": "grabber", "host": "camera-pc"},
+                              {"name": "segmentation", "kind": "segmentation", "host": "camera-pc"},
+                              {"name": "reconstruction", "kind": "reconstruction"},
+                              {"name": "recorder", "kind": "recorder"}]}
+    path = room_files / "layout.yaml"
+    path.write_text(yaml.safe_dump(layout_doc))
+    layout = load_layout(path)
+    assert layout.bus.acl.readers == ["viewer-pc"]
+    layout.save(room_files / "resolved.yaml")                  # the resolved layout keeps it
+    assert load_layout(room_files / "resolved.yaml").bus.acl == layout.bus.acl
+    keys = Keys("r")
+    hub = open_session(layout.bus, "router", access_control=room_access_control(layout, "hub"))
+    got: list[tuple[str, bytes]] = []
+    local = open_session(layout.bus.for_worker(), "client")   # a worker on the hub's host
+    sub = local.declare_subscriber(keys.root + "/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
+
+    def as_host(host: str) -> BusConfig:
+        return dataclasses.replace(layout.bus.for_worker(), tls=_tls(room_files / "tls", host))
+
+    def delivered(host: str, key: str, wait: float) -> bool:
+        client = open_session(as_host(host), "client")
+        tag = f"{host}:{key}".encode()
+        try:
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline:
+                client.put(key, tag)
+                time.sleep(0.05)
+                if any(p == tag for _, p in got):
+                    return True
+            return False
+        finally:
+            client.close()
+
+    try:
+        assert delivered("camera-pc", keys.frame("cam0"), ADMIT_WITHIN)
+        assert delivered("camera-pc", keys.mask("cam1"), ADMIT_WITHIN)
+        assert delivered("camera-pc", keys.stats("segmentation"), ADMIT_WITHIN)
+        assert delivered("hub", keys.voxels(), ADMIT_WITHIN)
+        for host, key in (("camera-pc", keys.voxels()), ("camera-pc", keys.stats("reconstruction")),
+                          ("camera-pc", keys.eos("reconstruction")), ("camera-pc", keys.tracks()),
+                          ("stranger", keys.frame("cam0")), ("stranger", keys.stats("grabber")),
+                          ("viewer-pc", keys.frame("cam0"))):
+            assert not delivered(host, key, REFUSE_FOR), (host, key)
+        # the reader receives what the room publishes
+        seen = threading.Event()
+        reader = open_session(as_host("viewer-pc"), "client")
+        try:
+            reader.declare_subscriber(keys.voxels(), lambda s: seen.set())
+            deadline = time.monotonic() + ADMIT_WITHIN
+            while not seen.is_set() and time.monotonic() < deadline:
+                local.put(keys.voxels(), b"v")
+                seen.wait(0.05)
+            assert seen.is_set()
+        finally:
+            reader.close()
+    finally:
+        sub.undeclare()
+        local.close()
+        hub.close()
+
+
+def test_a_run_with_access_control_takes_the_remote_host_s_worker(certs, tiny_recording, tmp_path):
+    """bus.acl in a real run: segmentation on host camera-pc, started by hand with that
+    host's own certificate (the resolved layout with its files, as each host keeps its own
+    under the same names), publishes its masks, stats, acknowledgements, heartbeats and end
+    through the hub's access control, and the run completes with it."""
+    shutil.copytree(certs / "room", tmp_path / "tls")
+    layout = yaml.safe_load((ROOT / "deploy/layouts/local.yaml").read_text())
+    layout["workers"] = [w for w in layout["workers"] if w["kind"] in ("grabber", "segmentation", "reconstruction",
+                                                                       "recorder")]
+    for w in layout["workers"]:
+        if w["name"] == "segmentation":
+            w["host"] = "camera-pc"
+    port = free_port()
+    layout["bus"] = {"listen": [f"tls/127.0.0.1:{port}"], "acl": True,
+                     "tls": {"ca": "tls/ca.pem", "cert": "tls/hub.pem", "key": "tls/hub.key"}}
+    path = tmp_path / "secure.yaml"
+    path.write_text(yaml.safe_dump(layout))
+    out = tmp_path / "out"
+    proc = start_smartroom("run", "--recording", tiny_recording, "--frames", 50, "--headless", "--layout", path,
+                           "--out", out)
+    remote = None
+    try:
+        for _ in range(400):
+            if (out / "layout.yaml").is_file():
+                break
+            time.sleep(0.05)
+        camera_pc = yaml.safe_load((out / "layout.yaml").read_text())
+        camera_pc["bus"]["tls"].update(cert=str(tmp_path / "tls/camera-pc.pem"), key=str(tmp_path / "tls/camera-pc.key"))
+        (tmp_path / "camera-pc.yaml").write_text(yaml.safe_dump(camera_pc))
+        remote = start_smartroom("worker", "segmentation", "--layout", tmp_path / "camera-pc.yaml")
+        _, err = proc.communicate(timeout=240)
+        _, remote_err = remote.communicate(timeout=30)
+    finally:
+        for p in (proc, remote):
+            if p is not None and p.poll() is None:
+                p.kill()
+    assert proc.returncode == 0, err[-2000:]
+    assert remote.returncode == 0, remote_err[-2000:]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"]
+    assert stats["stages"]["segmentation"]["frames_out"] == 50 and stats["stages"]["reconstruction"]["frames_out"] == 50
+    assert load_layout(out / "layout.yaml").bus.acl is not None
