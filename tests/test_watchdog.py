@@ -168,3 +168,53 @@ def test_a_silence_that_ends_without_a_restart_is_kept():
     assert dog.hung("tracking") is None
     dog.beat(beat("tracking", 7, loop_age=20.0))
     assert dog.silences() == {"tracking": [{"until": 5000.0, "s": 20.0}]}
+
+
+STALL_S = 100.0   # issue 25's probe: pose SIGSTOPped 100 s in a live run, then SIGCONT
+
+
+@pytest.mark.integration
+def test_a_live_stage_stalled_100_s_delivers_again_after_it_resumes(tmp_path):
+    """Live cameras, a watchdog longer than the stall: the segmentation stopped for 100 s
+    and then continued is not restarted; it and the stages after it jump to the newest
+    frames (counting what they skipped) instead of refusing everything as outside their
+    window, frames flow to the end of the run again, and stats.json keeps the silence."""
+    fps = 25.0
+    a = write_tiny_recording(tmp_path / "a", frames=int((STALL_S + 40) * fps))
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"watchdog_s": STALL_S + 60})
+    total = int((STALL_S + 25) * fps)
+    proc = start_smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}",
+                           "--live", f"cam1={a / 'videos' / 'cam1.avi'}", "--calibration", a / "calibration.yaml",
+                           "--headless", "--layout", layout, "--frames", total, "--out", out)
+    pid = None
+    try:
+        pid = wait_for(lambda: worker_pid(out, "segmentation"), timeout=60)
+        assert pid, "segmentation never reported"
+        time.sleep(1.0)
+        os.kill(pid, signal.SIGSTOP)
+        stopped_at = time.monotonic()
+        time.sleep(STALL_S)
+        os.kill(pid, signal.SIGCONT)
+        resumed_at = time.monotonic()
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if pid is not None:
+            try:
+                os.kill(pid, signal.SIGCONT)
+            except ProcessLookupError:
+                pass
+    assert resumed_at - stopped_at >= STALL_S
+    assert proc.returncode == 0, err[-2000:]
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    assert "segmentation" not in (s.get("restarts") or {})          # continued, not restarted
+    assert any(g["s"] >= STALL_S - 5 for g in s["silences"]["segmentation"]), s.get("silences")
+    frames = [f for f, _ in voxel_frames(out / "voxels.bin")]
+    assert frames == sorted(set(frames))
+    # the frames after the stall are there: it delivers again until the end of the run
+    late = [f for f in frames if f >= total - 10 * fps]
+    assert len(late) >= 5 * fps, (len(late), frames[-10:])
+    assert s["workers"]["reconstruction"]["frames_skipped"] > 0 or s["workers"]["segmentation"]["frames_skipped"] > 0
