@@ -187,25 +187,22 @@ def test_a_live_stage_stalled_100_s_delivers_again_after_it_resumes(tmp_path):
     proc = start_smartroom("run", "--live", f"cam0={a / 'videos' / 'cam0.avi'}",
                            "--live", f"cam1={a / 'videos' / 'cam1.avi'}", "--calibration", a / "calibration.yaml",
                            "--headless", "--layout", layout, "--frames", total, "--out", out)
-    pid = None
+    stopped = []
     try:
         pid = wait_for(lambda: worker_pid(out, "segmentation"), timeout=60)
         assert pid, "segmentation never reported"
         time.sleep(1.0)
         os.kill(pid, signal.SIGSTOP)
+        stopped.append(pid)
         stopped_at = time.monotonic()
         time.sleep(STALL_S)
-        os.kill(pid, signal.SIGCONT)
+        _resume(stopped)
         resumed_at = time.monotonic()
         _, err = proc.communicate(timeout=180)
     finally:
         if proc.poll() is None:
             proc.kill()
-        if pid is not None:
-            try:
-                os.kill(pid, signal.SIGCONT)
-            except ProcessLookupError:
-                pass
+        _resume(stopped)
     assert resumed_at - stopped_at >= STALL_S
     assert proc.returncode == 0, err[-2000:]
     s = stats_of(out)
