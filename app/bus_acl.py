@@ -57,14 +57,15 @@ def room_access_control(layout, hub_name: str) -> dict:
              {"id": "hub", "messages": EVERYTHING, "flows": ["ingress"], "permission": "allow", "key_exprs": ["**"]}]
     subjects = [{"id": "hub", "cert_common_names": [hub_name]}]
     policies = [{"rules": ["read", "receive", "hub"], "subjects": ["hub"]}]
-    hosts: dict[str, list[str]] = {}
+    hosts: dict[str, list] = {}   # host -> its workers
     for spec in layout.workers:
         if not spec.local and spec.host != hub_name:
-            hosts.setdefault(spec.host, []).extend(published_keys(layout, spec))
-    for n, (host, keys) in enumerate(sorted(hosts.items())):
-        alive = [Keys(layout.room).alive(s.name) for s in layout.workers if s.host == host]
+            hosts.setdefault(spec.host, []).append(spec)
+    for n, (host, specs) in enumerate(sorted(hosts.items())):
+        keys = sorted({k for spec in specs for k in published_keys(layout, spec)})
+        alive = [Keys(layout.room).alive(spec.name) for spec in specs]
         rules.append({"id": f"host{n}", "messages": ["put", "delete"], "flows": ["ingress"], "permission": "allow",
-                      "key_exprs": sorted(set(keys))})
+                      "key_exprs": keys})
         rules.append({"id": f"host{n}-alive", "messages": ["liveliness_token"], "flows": ["ingress"],
                       "permission": "allow", "key_exprs": alive})
         subjects.append({"id": f"host{n}", "cert_common_names": [host]})

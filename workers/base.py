@@ -537,7 +537,8 @@ class Worker(Restarts):
 
     def _on_control(self, sample) -> None:
         key = str(sample.key_expr)
-        if self.keys.last(key) not in self._members:   # told from the key, before decoding
+        name = self.keys.last(key)
+        if name not in self._members:   # told from the key, before decoding
             self.reject(key, "not a worker of the layout")   # any process may publish on the bus
             return
         try:
@@ -546,25 +547,20 @@ class Worker(Restarts):
         except MessageError as exc:
             self.reject(key, "malformed", str(exc))
             return
-        if isinstance(msg, (EndOfStream, Stats)) and msg.worker not in self._members:
-            self.reject(key, "not a worker of the layout")   # any process may publish on the bus
+        if isinstance(msg, (EndOfStream, Stats)) and msg.worker != name:   # (so a worker of the layout)
+            what = "end of stream" if isinstance(msg, EndOfStream) else "stats"
+            self.reject(key, f"{what} under another worker's name")
             return
         if isinstance(msg, EndOfStream):
             if "stats" in self.CONSUMES:  # the end of stream carries the worker's final figures
                 self.on_stats(Stats(frame=msg.frame, stamp=msg.stamp, worker=msg.worker, stage=msg.stage,
                                     final=True, figures=msg.figures))
-            if msg.worker != self.keys.last(key):
-                self.reject(key, "end of stream under another worker's name")
-                return
             if msg.worker not in self._wait_for:
                 return   # another stage's end: not this worker's input
             with self._lock:
                 self._upstream_eos[msg.worker] = (msg, time.monotonic())
             self.inbox.wake()
         elif isinstance(msg, Stats):
-            if msg.worker != self.keys.last(key):
-                self.reject(key, "stats under another worker's name")
-                return
             self.on_stats(msg)
         else:
             self.reject(key, f"unexpected {type(msg).__name__}")

@@ -248,7 +248,8 @@ class SourceFlow:
         from app.messages import Ack, MessageError
 
         w = self.worker
-        if w.keys.last(sample.key_expr) not in self.control.stages:   # told from the key, before decoding
+        name = w.keys.last(sample.key_expr)
+        if name not in self.control.stages:   # told from the key, before decoding
             w.reject(str(sample.key_expr), "acknowledgement of another stream")
             return
         try:
@@ -257,7 +258,7 @@ class SourceFlow:
         except MessageError:
             w.reject(str(sample.key_expr), "malformed")
             return
-        if not isinstance(msg, Ack) or msg.worker not in self.control.stages or msg.epoch != self.epoch:
+        if not isinstance(msg, Ack) or msg.worker != name or msg.epoch != self.epoch:
             w.reject(str(sample.key_expr), "acknowledgement of another stream")
             return
         self.control.acknowledge(msg.worker, msg.frame, msg.out)

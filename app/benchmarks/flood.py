@@ -132,7 +132,8 @@ def _outputs_equal(a, b) -> bool | None:
 
 def _workers_cpu(stats: dict) -> float:
     """CPU seconds of the run's workers (each from its first input to its last output)."""
-    return sum(float(w.get("cpu_ms_per_frame") or 0.0) * max(int(w.get("frames_in") or 0), int(w.get("frames_out") or 0))
+    return sum(float(w.get("cpu_ms_per_frame") or 0.0)
+               * max(int(w.get("frames_in") or 0), int(w.get("frames_out") or 0))
                for w in stats.get("workers", {}).values()) / 1e3
 
 

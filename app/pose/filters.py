@@ -222,6 +222,9 @@ class SHBMAPF(_Base):
         return sum(self.sizes) * self.inner_layers
 
 
+SWITCHES_KEPT = 1000   # LimbSwitch.events: the last this many limb switches
+
+
 class LimbSwitch:
     """DDM-APF's lost/found limb detection (§7.4.2) with an annealed scout filter (ASPF)
     per lost limb unit (:data:`app.pose.flesh.LIMBS`: whole limbs and their end parts).
@@ -253,7 +256,7 @@ class LimbSwitch:
         self.rng = rng if rng is not None else np.random.default_rng(1)
         self.active = {unit: True for unit in LIMBS}
         self.scouts: dict[str, np.ndarray] = {}
-        self.events: deque = deque(maxlen=1000)   # (unit, on) of the last switches (a log, bounded)
+        self.events: deque = deque(maxlen=SWITCHES_KEPT)   # (unit, on) of the last switches (a log, bounded)
         self.last: dict[str, tuple] = {}     # unit -> (spread deg, occupancy) of the last check
 
     def _tracked(self, unit) -> bool:
