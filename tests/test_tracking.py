@@ -308,3 +308,62 @@ def test_the_first_person_in_an_empty_room_is_confirmed_sooner():
         counts = [len(res[f][0]) for f in range(20)]
         assert counts.index(1) == first, (sure, counts)
         assert counts.index(2) == second, (sure, counts)
+
+
+def _stands_then_leaves(n=170, stand=(2.0, 2.0), still_until=80, ghost_from=100):
+    """A person walks in, stands still at ``stand`` until frame ``still_until``, then walks
+    away to the far side; from ``ghost_from`` the background's ghost of them (their shape,
+    dressed as they were, never moving) stands where they stood."""
+    frames, truth = [], {}
+    for f in range(n):
+        if f < 20:
+            p = (0.5 + (stand[0] - 0.5) * f / 20, stand[1])
+        elif f < still_until:
+            p = stand
+        else:
+            p = (min(stand[0] + 0.05 * (f - still_until), 4.5), stand[1])
+        parts = [(_cylinder(*p), RED, BLUE)]
+        if f >= ghost_from:
+            parts.append((_cylinder(*stand), RED, BLUE))
+        frames.append(frame_of(f, parts))
+        truth[f] = {1: p}
+    return frames, truth_of(truth)
+
+
+def test_the_ghost_a_person_leaves_where_they_stood_still_never_becomes_a_track():
+    """A background that took in a person who stood still shows, once they go, a ghost of
+    their exact shape where they stood (seen by every camera, so the ghost test passes
+    it): with the rule of places left behind (``vacated_frames``) it holds no track; the
+    person keeps theirs. Without it (0, the thesis) the ghost is tracked."""
+    frames, truth = _stands_then_leaves()
+    s = score_tracking(truth, run(frames))
+    assert s.false_positives == 0 and s.mota >= 0.95 and s.mismatches == 0, s.summary()
+    s = score_tracking(truth, run(frames, vacated_frames=0))
+    assert s.false_positives >= 40, s.summary()
+
+
+def test_a_person_who_stood_still_for_a_moment_only_leaves_no_place_behind():
+    """A pause shorter than ``vacated_frames`` is not a place left behind: something at
+    that place afterwards (here a second person who steps in there) gets its track."""
+    frames, truth = _stands_then_leaves(still_until=60, ghost_from=100)   # 40 frames still
+    s = score_tracking(truth, run(frames))
+    assert s.false_positives >= 40, s.summary()   # the second body is tracked (the truth lists one person)
+
+
+def test_a_track_dragged_onto_another_person_vacates_nothing():
+    """A track that stood at its person's place and then went where a track it made a
+    duplicate ended (dragged off its person, who is still there, onto another's) has
+    left no place behind: the person it left gets a new track."""
+    from types import SimpleNamespace
+
+    from app.tracking.tracker import MultiTracker, _Track
+
+    tracker = MultiTracker(TrackerParams())
+    track = _Track(1, SimpleNamespace(x=np.array([0.7, 2.8, 1.0])))
+    for _ in range(60):                                    # standing at (0.7, 2.8)
+        assert track.settle(tracker.p) is None
+    tracker.events.append((80, "end", 2, "duplicate", np.array([1.6, 2.6, 1.0])))   # the other person's track
+    track.target.x = np.array([1.6, 2.6, 1.0])            # ... where this one went
+    assert np.allclose(track.settle(tracker.p), [0.7, 2.8], atol=0.01)   # it did leave its place ...
+    assert tracker._took_over(track, 85)                   # ... onto another's person: no place left
+    assert not tracker._took_over(track, 85 + tracker.p.vacated_frames + 1)   # an old duplicate says nothing

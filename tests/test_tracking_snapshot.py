@@ -122,3 +122,36 @@ def test_after_a_gap_a_restored_tracker_finds_its_people_where_they_went():
             assert who == {1: 1, 2: 2}
         else:
             assert set(who) == {3, 4}    # what a wider search saves
+
+
+def test_places_left_behind_and_where_tracks_stay_are_restored():
+    """Saved after the person left the place they stood at (and while their track settles
+    somewhere else), the restored tracker still refuses the ghost they left behind and
+    carries on bit for bit; a snapshot of an earlier build (no such arrays) restores with
+    no place left behind."""
+    from tests.test_tracking import _stands_then_leaves
+
+    frames, _ = _stands_then_leaves()
+    tree = load_tree()
+    cca = ComponentAnalysis(DIMS, (0, 0, 0), VS, tree)
+    scenes = []
+    for v in frames:
+        labels, feats, person = cca(v.indices)
+        scenes.append(SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person, (0, 0, 0), VS,
+                                 OccupancyIndex(DIMS)))
+    whole, first = MultiTracker(TrackerParams(), tree), MultiTracker(TrackerParams(), tree)
+    cut = 105
+    for sc in scenes[:cut]:
+        whole.update(sc), first.update(sc)
+    assert len(first.vacated) == 1
+    arrays = through_npz(tracker_state(first, DIMS))
+    again = restore_tracker(TrackerParams(), tree, arrays, DIMS)
+    assert np.array_equal(again.vacated[0], first.vacated[0])
+    assert [(t.settled, t.away) for t in again.tracks] == [(t.settled, t.away) for t in first.tracks]
+    for sc in scenes[cut:]:
+        ids_a, pos_a = whole.update(sc)
+        ids_b, pos_b = again.update(sc)
+        assert np.array_equal(ids_a, ids_b) and np.array_equal(pos_a, pos_b), sc.frame
+        assert len(ids_b) <= 1, sc.frame   # the ghost never a track
+    older = {k: v for k, v in arrays.items() if k != "vacated" and not k.endswith(".anchor")}
+    assert not restore_tracker(TrackerParams(), tree, older, DIMS).vacated

@@ -45,13 +45,15 @@ class Tracking(Worker):
         "no_person_credit": 1.0,   # frames of patience a track earns by each frame it was a person, against
         "no_person_cap": 100,      # the classifier's no-person verdicts (crouching, sitting), at most this many
                                    # (0: the thesis, a track ends after 18 no-person frames)
+        "vacated_frames": 50,      # no new track where a track stayed this many frames and then left (the
+                                   # background's ghost of a person who stood still; app.tracking.tracker; 0: off)
         "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
                                    # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
     RANGES = {"samples": (10, 5000), "particles": (5, 2000), "confirm_sure_frames": (1, 100), "same_place": (0.0, 2.0),
-              "no_person_credit": (0.0, 100.0), "no_person_cap": (0, 100000),
+              "no_person_credit": (0.0, 100.0), "no_person_cap": (0, 100000), "vacated_frames": (0, 100000),
               "snapshot_frames": (1, 1000)}
     WALK_SPEED = 1.5         # m/s: how far a person may have gone in a gap the tracker did not see
     RELOCATE_AFTER_S = 0.2   # a gap shorter than this needs no wider search
@@ -67,7 +69,8 @@ class Tracking(Worker):
                                                 "confirm_sure_frames": int(p["confirm_sure_frames"]),
                                                 "same_place": float(p["same_place"]),
                                                 "no_person_credit": float(p["no_person_credit"]),
-                                                "no_person_cap": int(p["no_person_cap"])})
+                                                "no_person_cap": int(p["no_person_cap"]),
+                                                "vacated_frames": int(p["vacated_frames"])})
         except (TypeError, ValueError) as exc:
             raise InputError(f"tracking: {exc}") from None
         name = p["classifier"]

@@ -65,8 +65,10 @@ def tracker_state(tracker: MultiTracker, dims=None) -> dict[str, np.ndarray]:
     for k, t in enumerate(tracker.tracks):
         g = t.target
         entry = {"id": int(t.id), "age": int(t.age), "low_support": int(t.low_support),
-                 "no_person": int(t.no_person), "close": int(t.close), "person": int(t.person)}
+                 "no_person": int(t.no_person), "close": int(t.close), "person": int(t.person),
+                 "settled": int(t.settled), "away": int(t.away)}
         arrays[f"t{k}.x"] = np.asarray(g.x, dtype=np.float64)
+        arrays[f"t{k}.anchor"] = np.asarray(t.anchor, dtype=np.float64)
         if isinstance(g, SparseTarget):
             arrays[f"t{k}.samples"] = np.asarray(g.samples).astype(np.uint16).reshape(-1, 3)   # grid indices
         elif isinstance(g, ParticleTarget):
@@ -77,6 +79,7 @@ def tracker_state(tracker: MultiTracker, dims=None) -> dict[str, np.ndarray]:
                       "reference": _put_histogram(arrays, f"t{k}", g.reference)}
         tracks.append(entry)
     arrays["candidates"] = np.array([c for c, _, _ in tracker.candidates], dtype=np.float64).reshape(-1, 3)
+    arrays["vacated"] = np.array(list(tracker.vacated), dtype=np.float64).reshape(-1, 2)
     ended = []
     for k, (frame, tid, x, ref) in enumerate(tracker.ended):
         arrays[f"e{k}.x"] = np.asarray(x, dtype=np.float64)
@@ -181,7 +184,11 @@ def restore_tracker(params: TrackerParams, classifier, arrays, dims=None) -> Mul
             t.age, t.low_support, t.no_person, t.close = (int(entry[n]) for n in
                                                           ("age", "low_support", "no_person", "close"))
             t.person = int(entry.get("person", 0))   # snapshots before the patience rule have none
-            if not 0 < t.id < tracker.next_id or min(t.age, t.low_support, t.no_person, t.close, t.person) < 0:
+            t.settled, t.away = int(entry.get("settled", 0)), int(entry.get("away", 0))   # ... or places left
+            if f"t{k}.anchor" in arrays:
+                t.anchor = _array(arrays, f"t{k}.anchor", np.float64, (2,)).copy()
+            if not 0 < t.id < tracker.next_id or min(t.age, t.low_support, t.no_person, t.close, t.person,
+                                                     t.settled, t.away) < 0:
                 raise SnapshotError(f"tracker snapshot: track {k} has a malformed id or counters")
             tracker.tracks.append(t)
         if len({t.id for t in tracker.tracks}) != len(tracker.tracks):
@@ -191,6 +198,8 @@ def restore_tracker(params: TrackerParams, classifier, arrays, dims=None) -> Mul
         if len(sightings) != len(centres) or len(centres) > MAX_TRACKS:
             raise SnapshotError("tracker snapshot: candidates and their sightings differ in number")
         tracker.candidates = [(c, int(a), int(b)) for c, (a, b) in zip(centres, sightings)]
+        if "vacated" in arrays:
+            tracker.vacated.extend(np.array(v) for v in _array(arrays, "vacated", np.float64, (None, 2)))
         if len(meta["ended"]) > MAX_TRACKS:
             raise SnapshotError("tracker snapshot: malformed ended tracks")
         for k, e in enumerate(meta["ended"]):

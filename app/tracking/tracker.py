@@ -39,7 +39,17 @@ Each frame (:meth:`MultiTracker.update`):
 4. re-identification (beyond the thesis, ``reid_frames``; 0 turns it off): a track
    confirmed where a track ended for a no-person verdict a moment ago, and, with colour,
    dressed alike, takes the ended track's id, so a person whose track was dropped for
-   a few frames (a blob that briefly fails the person test) keeps their identity.
+   a few frames (a blob that briefly fails the person test) keeps their identity;
+5. places left behind (beyond the thesis, ``vacated_frames``; 0 turns it off): a track
+   that stayed within ``vacated_radius`` (xy) of one place for ``vacated_frames`` frames
+   and then went farther than ``vacated_depart`` from it has *vacated* that place; no new
+   track starts within ``vacated_radius`` of a vacated place. A background that took in
+   a person who stood still (a median estimated from a recording that shows them there
+   half the time, a live model that learnt them) shows the room where they stood as
+   foreground once they go: a ghost of their exact shape, seen by every camera, that no
+   silhouette test tells from a person. A person who comes back to the place walks in
+   tracked, so no new track is needed there. A track that went where a track it made a
+   duplicate ended was dragged off its person onto another's: it vacated nothing.
 
 The tracker reports confirmed targets only; ids are never reused otherwise.
 """
@@ -60,6 +70,7 @@ from app.tracking.sparse import SparseTarget
 __all__ = ["TrackerParams", "MultiTracker", "FILTERS"]
 
 EVENTS_KEPT = 1000   # MultiTracker.events: the last this many track starts and ends
+VACATED_KEPT = 64    # MultiTracker.vacated: the last this many places left behind
 
 #: filter name -> (target class, uses colour)
 FILTERS = {
@@ -114,6 +125,9 @@ class TrackerParams:
     reid_frames: int = 50          # a new track this soon after a track ended near it takes its id (0: never)
     reid_distance: float = 0.75    # ... within this distance (m, xy) of where it ended
     reid_similarity: float = 0.5   # ... with reference histograms this similar (Bhattacharyya), colour filters
+    vacated_frames: int = 50       # a track this long within vacated_radius of a place (xy) ... (0: off, the thesis)
+    vacated_radius: float = 0.3    # ... that then goes farther than vacated_depart from it has vacated it:
+    vacated_depart: float = 0.6    # no new track starts within vacated_radius of it (a background's ghost)
     refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
     refine_radius: float = 0.45
     refine_particles: bool = True   # the particle filter's cloud moves with its re-centred estimate
@@ -133,13 +147,34 @@ class TrackerParams:
 
 
 class _Track:
-    __slots__ = ("id", "target", "age", "low_support", "no_person", "close", "person")
+    __slots__ = ("id", "target", "age", "low_support", "no_person", "close", "person", "anchor", "settled", "away")
 
     def __init__(self, tid, target):
         self.id, self.target = tid, target
         self.age = 0
         self.low_support = self.no_person = self.close = 0
         self.person = 0   # frames its share was a person (the patience it earned, ``no_person_credit``)
+        self.anchor = np.array(target.x[:2], dtype=np.float64)   # the place it stays at (``vacated_frames``)
+        self.settled = 0  # frames it stayed within vacated_radius of the anchor
+        self.away = 0     # frames since it went beyond vacated_radius of it, not yet beyond vacated_depart
+
+    def settle(self, p) -> np.ndarray | None:
+        """One frame of the place the track stays at: the anchor when the track has just
+        vacated it (stayed ``vacated_frames`` there, now beyond ``vacated_depart``), else
+        None. Within ``vacated_radius`` the anchor follows slow drifts; between the two
+        distances for a second the track has moved over, not away: a new anchor."""
+        d = float(np.hypot(*(self.target.x[:2] - self.anchor)))
+        if d < p.vacated_radius:
+            self.settled += 1
+            self.away = 0
+            self.anchor += 0.05 * (self.target.x[:2] - self.anchor)
+            return None
+        left = self.anchor.copy() if d > p.vacated_depart and self.settled >= p.vacated_frames else None
+        self.away += 1
+        if left is not None or d > p.vacated_depart or self.away > 25:
+            self.anchor = np.array(self.target.x[:2], dtype=np.float64)
+            self.settled = self.away = 0
+        return left
 
 
 class MultiTracker:
@@ -162,6 +197,8 @@ class MultiTracker:
         self.next_id = 1
         self.deleted = 0
         self.ended: list[tuple] = []   # (frame, id, position, reference histogram) of recently ended tracks
+        #: the last ``VACATED_KEPT`` places (x, y) tracks stayed at and then left (``vacated_frames``)
+        self.vacated: deque = deque(maxlen=VACATED_KEPT)
         #: (frame, "new" | "end", id, why, position) of the last ``EVENTS_KEPT`` tracks created
         #: or ended (a log, bounded: a room that runs for weeks starts and ends tracks for good)
         self.events: deque = deque(maxlen=EVENTS_KEPT)
@@ -179,6 +216,10 @@ class MultiTracker:
             if self.p.refine:
                 self._refine(scene)
         self._delete(scene)
+        if self.p.vacated_frames > 0:
+            for t in self.tracks:
+                if (left := t.settle(self.p)) is not None and not self._took_over(t, scene.frame):
+                    self.vacated.append(left)
         self._create(scene)
         self._known_frame = self._known = self._known_centres = self._known_counts = None
         ids = np.array([t.id for t in self.tracks], dtype=np.int64)
@@ -354,6 +395,15 @@ class MultiTracker:
             keep.append(t)
         self.tracks = keep
 
+    def _took_over(self, track: _Track, frame: int) -> bool:
+        """Whether ``track`` went where a track it made a duplicate ended, within the last
+        ``vacated_frames`` frames: dragged off its person onto another's, it left nobody's
+        place (the person it followed is still there and needs a new track)."""
+        p = self.p
+        return any(why == "duplicate" and frame - f <= p.vacated_frames
+                   and float(np.hypot(*(x[:2] - track.target.x[:2]))) < p.vacated_depart
+                   for f, kind, _, why, x in self.events if kind == "end")
+
     def duplicate_of(self, older, younger) -> bool:
         """``younger`` is on ``older``'s person this frame: within ``duplicate_distance``
         and dressed alike, or (beyond the thesis) within ``same_place`` whatever the
@@ -431,6 +481,8 @@ class MultiTracker:
         for c, sure in found:
             if c[2] < p.new_min_z:   # a blob this low is a phantom or a piece, not a body
                 continue
+            if any((v[0] - c[0]) ** 2 + (v[1] - c[1]) ** 2 < p.vacated_radius ** 2 for v in self.vacated):
+                continue             # where a person stood still and left: the background's ghost of them
             count, sure_count = 1, int(sure)
             for old, k, ks in self.candidates:
                 if ((old[:2] - c[:2]) ** 2).sum() < p.new_distance ** 2:
