@@ -367,3 +367,13 @@ def test_a_track_dragged_onto_another_person_vacates_nothing():
     assert np.allclose(track.settle(tracker.p), [0.7, 2.8], atol=0.01)   # it did leave its place ...
     assert tracker._took_over(track, 85)                   # ... onto another's person: no place left
     assert not tracker._took_over(track, 85 + tracker.p.vacated_frames + 1)   # an old duplicate says nothing
+
+
+def test_a_place_left_empty_is_released():
+    """A place left behind where nothing stands (the background kept no ghost) is given
+    up after ``vacated_release`` frames: a body that stands there later gets its track."""
+    frames, truth = _stands_then_leaves(n=190, still_until=80, ghost_from=140)
+    res = run(frames)
+    assert max(len(ids) for ids, _ in list(res.values())[150:]) == 2   # the later body is tracked
+    s = score_tracking(truth, res)
+    assert s.false_positives >= 30 and s.mismatches == 0, s.summary()   # (the truth lists one person)

@@ -16,18 +16,23 @@ from tests.test_tracking import DIMS, VS, crossing
 PARAMS = {"ss_colour": {}, "ss_raw": {}, "pf_colour": {"particles": 60}, "naive": {}}
 
 
-@pytest.fixture(scope="module")
-def scenes():
-    """The crossing of tests/test_tracking.py (two people merge into one blob), as scenes."""
-    frames, _ = crossing(n=60)
-    tree = load_tree()
+def _as_scenes(frames, tree) -> list:
+    """Voxel frames of tests/test_tracking.py as the tracker's scenes (CCA and person test)."""
     cca = ComponentAnalysis(DIMS, (0, 0, 0), VS, tree)
     out = []
     for v in frames:
         labels, feats, person = cca(v.indices)
         out.append(SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person, (0, 0, 0), VS,
                               OccupancyIndex(DIMS)))   # a scene's column index lives in its OccupancyIndex
-    return out, tree
+    return out
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    """The crossing of tests/test_tracking.py (two people merge into one blob), as scenes."""
+    frames, _ = crossing(n=60)
+    tree = load_tree()
+    return _as_scenes(frames, tree), tree
 
 
 @pytest.mark.parametrize("filt", sorted(PARAMS))
@@ -133,12 +138,7 @@ def test_places_left_behind_and_where_tracks_stay_are_restored():
 
     frames, _ = _stands_then_leaves()
     tree = load_tree()
-    cca = ComponentAnalysis(DIMS, (0, 0, 0), VS, tree)
-    scenes = []
-    for v in frames:
-        labels, feats, person = cca(v.indices)
-        scenes.append(SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person, (0, 0, 0), VS,
-                                 OccupancyIndex(DIMS)))
+    scenes = _as_scenes(frames, tree)
     whole, first = MultiTracker(TrackerParams(), tree), MultiTracker(TrackerParams(), tree)
     cut = 105
     for sc in scenes[:cut]:

@@ -79,7 +79,7 @@ def tracker_state(tracker: MultiTracker, dims=None) -> dict[str, np.ndarray]:
                       "reference": _put_histogram(arrays, f"t{k}", g.reference)}
         tracks.append(entry)
     arrays["candidates"] = np.array([c for c, _, _ in tracker.candidates], dtype=np.float64).reshape(-1, 3)
-    arrays["vacated"] = np.array(list(tracker.vacated), dtype=np.float64).reshape(-1, 2)
+    arrays["vacated"] = np.array(list(tracker.vacated), dtype=np.float64).reshape(-1, 3)
     ended = []
     for k, (frame, tid, x, ref) in enumerate(tracker.ended):
         arrays[f"e{k}.x"] = np.asarray(x, dtype=np.float64)
@@ -199,7 +199,7 @@ def restore_tracker(params: TrackerParams, classifier, arrays, dims=None) -> Mul
             raise SnapshotError("tracker snapshot: candidates and their sightings differ in number")
         tracker.candidates = [(c, int(a), int(b)) for c, (a, b) in zip(centres, sightings)]
         if "vacated" in arrays:
-            tracker.vacated.extend(np.array(v) for v in _array(arrays, "vacated", np.float64, (None, 2)))
+            tracker.vacated.extend(np.array(v) for v in _array(arrays, "vacated", np.float64, (None, 3)))
         if len(meta["ended"]) > MAX_TRACKS:
             raise SnapshotError("tracker snapshot: malformed ended tracks")
         for k, e in enumerate(meta["ended"]):

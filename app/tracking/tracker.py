@@ -49,7 +49,10 @@ Each frame (:meth:`MultiTracker.update`):
    foreground once they go: a ghost of their exact shape, seen by every camera, that no
    silhouette test tells from a person. A person who comes back to the place walks in
    tracked, so no new track is needed there. A track that went where a track it made a
-   duplicate ended was dragged off its person onto another's: it vacated nothing.
+   duplicate ended was dragged off its person onto another's: it vacated nothing. A
+   place is kept while something stands there: once no voxel lies within
+   ``vacated_radius`` of it for ``vacated_release`` frames (the background let the
+   ghost go, or there was none), anyone may start a track there again.
 
 The tracker reports confirmed targets only; ids are never reused otherwise.
 """
@@ -128,6 +131,7 @@ class TrackerParams:
     vacated_frames: int = 50       # a track this long within vacated_radius of a place (xy) ... (0: off, the thesis)
     vacated_radius: float = 0.3    # ... that then goes farther than vacated_depart from it has vacated it:
     vacated_depart: float = 0.6    # no new track starts within vacated_radius of it (a background's ghost)
+    vacated_release: int = 25      # ... until no voxel has been there for this many frames
     refine: bool = True            # re-centre estimates on their share of the voxels (beyond the thesis)
     refine_radius: float = 0.45
     refine_particles: bool = True   # the particle filter's cloud moves with its re-centred estimate
@@ -197,7 +201,8 @@ class MultiTracker:
         self.next_id = 1
         self.deleted = 0
         self.ended: list[tuple] = []   # (frame, id, position, reference histogram) of recently ended tracks
-        #: the last ``VACATED_KEPT`` places (x, y) tracks stayed at and then left (``vacated_frames``)
+        #: the last ``VACATED_KEPT`` places tracks stayed at and then left (``vacated_frames``):
+        #: ``[x, y, frames nothing stood there]``
         self.vacated: deque = deque(maxlen=VACATED_KEPT)
         #: (frame, "new" | "end", id, why, position) of the last ``EVENTS_KEPT`` tracks created
         #: or ended (a log, bounded: a room that runs for weeks starts and ends tracks for good)
@@ -217,9 +222,7 @@ class MultiTracker:
                 self._refine(scene)
         self._delete(scene)
         if self.p.vacated_frames > 0:
-            for t in self.tracks:
-                if (left := t.settle(self.p)) is not None and not self._took_over(t, scene.frame):
-                    self.vacated.append(left)
+            self._vacate(scene)
         self._create(scene)
         self._known_frame = self._known = self._known_centres = self._known_counts = None
         ids = np.array([t.id for t in self.tracks], dtype=np.int64)
@@ -394,6 +397,24 @@ class MultiTracker:
                 continue
             keep.append(t)
         self.tracks = keep
+
+    def _vacate(self, scene: SceneFrame) -> None:
+        """The places left behind this frame (module docstring, 5.): the tracks' new ones
+        (one place where two were), the counts of frames nothing stood there, the
+        places released."""
+        p = self.p
+        for t in self.tracks:
+            if (left := t.settle(p)) is not None and not self._took_over(t, scene.frame):
+                kept = [v for v in self.vacated
+                        if (v[0] - left[0]) ** 2 + (v[1] - left[1]) ** 2 >= p.vacated_radius ** 2]
+                self.vacated.clear()
+                self.vacated.extend(kept + [np.array([left[0], left[1], 0.0])])
+        for v in self.vacated:
+            v[2] = v[2] + 1 if self._disc(scene, v, p.vacated_radius)[0] == 0 else 0
+        if any(v[2] >= p.vacated_release for v in self.vacated):
+            kept = [v for v in self.vacated if v[2] < p.vacated_release]
+            self.vacated.clear()
+            self.vacated.extend(kept)
 
     def _took_over(self, track: _Track, frame: int) -> bool:
         """Whether ``track`` went where a track it made a duplicate ended, within the last
