@@ -74,6 +74,13 @@ __all__ = ["TrackerParams", "MultiTracker", "FILTERS"]
 
 EVENTS_KEPT = 1000   # MultiTracker.events: the last this many track starts and ends
 VACATED_KEPT = 64    # MultiTracker.vacated: the last this many places left behind
+MOVED_OVER = 25      # frames a track stays between vacated_radius and vacated_depart of its place: it moved over
+ANCHOR_FOLLOW = 0.05  # share of a settled track's drift its place follows each frame
+
+
+def _near(place, xy, r: float) -> bool:
+    """Whether ``place`` (x, y, ...) lies within ``r`` of ``xy`` (x, y, ...), in the floor plane."""
+    return (place[0] - xy[0]) ** 2 + (place[1] - xy[1]) ** 2 < r * r
 
 #: filter name -> (target class, uses colour)
 FILTERS = {
@@ -171,11 +178,11 @@ class _Track:
         if d < p.vacated_radius:
             self.settled += 1
             self.away = 0
-            self.anchor += 0.05 * (self.target.x[:2] - self.anchor)
+            self.anchor += ANCHOR_FOLLOW * (self.target.x[:2] - self.anchor)
             return None
         left = self.anchor.copy() if d > p.vacated_depart and self.settled >= p.vacated_frames else None
         self.away += 1
-        if left is not None or d > p.vacated_depart or self.away > 25:
+        if left is not None or d > p.vacated_depart or self.away > MOVED_OVER:
             self.anchor = np.array(self.target.x[:2], dtype=np.float64)
             self.settled = self.away = 0
         return left
@@ -405,16 +412,12 @@ class MultiTracker:
         p = self.p
         for t in self.tracks:
             if (left := t.settle(p)) is not None and not self._took_over(t, scene.frame):
-                kept = [v for v in self.vacated
-                        if (v[0] - left[0]) ** 2 + (v[1] - left[1]) ** 2 >= p.vacated_radius ** 2]
-                self.vacated.clear()
-                self.vacated.extend(kept + [np.array([left[0], left[1], 0.0])])
+                self.vacated = deque([v for v in self.vacated if not _near(v, left, p.vacated_radius)]
+                                     + [np.array([left[0], left[1], 0.0])], maxlen=VACATED_KEPT)
         for v in self.vacated:
             v[2] = v[2] + 1 if self._disc(scene, v, p.vacated_radius)[0] == 0 else 0
         if any(v[2] >= p.vacated_release for v in self.vacated):
-            kept = [v for v in self.vacated if v[2] < p.vacated_release]
-            self.vacated.clear()
-            self.vacated.extend(kept)
+            self.vacated = deque([v for v in self.vacated if v[2] < p.vacated_release], maxlen=VACATED_KEPT)
 
     def _took_over(self, track: _Track, frame: int) -> bool:
         """Whether ``track`` went where a track it made a duplicate ended, within the last
@@ -502,7 +505,7 @@ class MultiTracker:
         for c, sure in found:
             if c[2] < p.new_min_z:   # a blob this low is a phantom or a piece, not a body
                 continue
-            if any((v[0] - c[0]) ** 2 + (v[1] - c[1]) ** 2 < p.vacated_radius ** 2 for v in self.vacated):
+            if any(_near(v, c, p.vacated_radius) for v in self.vacated):
                 continue             # where a person stood still and left: the background's ghost of them
             count, sure_count = 1, int(sure)
             for old, k, ks in self.candidates:
