@@ -96,6 +96,7 @@ class Pose(Worker):
         "mode": "markerless",       # markerless (voxels, Ch. 6-7) or markers (coloured markers, §6.4)
         "marker_particles": 700,    # markers: N_pL (app.markers.people.MarkerSettings)
         "marker_layers": 3,         # markers: L
+        "marker_alpha": 0.3,        # markers: the annealing's survival rate per layer (Eq. 3.21)
         "marker_rho": 20.0,         # markers: px, a landmark's detection is the nearest within rho (Eq. 6.5)
         "marker_cost": "both_ways",  # markers: thesis (Eqs. 6.6-6.9), reprojection or both_ways
         "marker_proposals": 0.2,    # markers: share of the first layer from the triangulated markers
@@ -189,8 +190,8 @@ class Pose(Worker):
               "snapshot_frames": (1, 1000), "threads": (1, 64),
               "behaviour_start": (1, 1000), "behaviour_particles": (10, 20000), "behaviour_lambda": (0.0, 5.0),
               "behaviour_layers": (1, 12), "behaviour_refine": (0.0, 10.0), "behaviour_temperature": (0.0, 1e4),
-              "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_rho": (1.0, 500.0),
-              "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
+              "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_alpha": (0.05, 0.95),
+              "marker_rho": (1.0, 500.0), "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
               "marker_settle": (0, 1000), "marker_floor": (0.0, 10.0)}
 
     @classmethod
@@ -266,7 +267,7 @@ class Pose(Worker):
         from app.markers.people import MarkerSettings
         p = self.params
         return MarkerSettings(particles=int(p["marker_particles"]), layers=int(p["marker_layers"]),
-                              rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
+                              alpha=float(p["marker_alpha"]), rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
                               proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
                               settle=int(p["marker_settle"]), floor=float(p["marker_floor"]), seed=int(p["seed"]),
                               threads=int(p["threads"]))

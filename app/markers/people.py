@@ -10,7 +10,10 @@ cost, Eq. 6.9 plus our detections' term), and the filter runs ``acquire`` times 
 first frame from the neutral pose's spread (the arms and legs find their markers there:
 2.3 cm mean joint error after 4 runs on the simulated gesture1); the same is done facing
 the other way round, both are followed for ``settle`` frames and the one the detections
-fit better kept (:meth:`MarkerPeople.acquire`). Each track draws from
+fit better kept (:meth:`MarkerPeople.acquire`). Until then the filter anneals at the
+survival rate 0.5 (:data:`SEARCH_ALPHA`: a wider search, the body still far from its
+pose), afterwards at the settings' ``alpha`` (0.3: closer to the markers once near them).
+Each track draws from
 its own random stream (``seed`` and the track id), so sharded pose workers give the poses
 of one.
 
@@ -37,6 +40,7 @@ FORMAT = "smartroom-marker-state/1"
 YAWS = 8
 WALKED = 0.15     # m from where a track was acquired: it walks, and faces the way it goes
 HEADING = 1.0     # the cost a settling hypothesis facing back from that way gains a frame
+SEARCH_ALPHA = 0.5   # the survival rate while a track is acquired and settles (far from its pose yet)
 
 
 class SnapshotError(ValueError):
@@ -50,6 +54,7 @@ class MarkerSettings:
 
     particles: int = 700        # N_pL (the thesis's best, Fig. 6.13)
     layers: int = 3             # L
+    alpha: float = 0.3          # the annealing's survival rate per layer (Eq. 3.21; 0.5 the markerless filter's)
     rho: float = 20.0           # px: a landmark's detection is the nearest within rho (Eq. 6.5)
     cost: str = "both_ways"     # thesis (Eqs. 6.6-6.9), reprojection or both_ways (app.markers.likelihood)
     proposals: float = 0.2      # share of the first layer drawn from the triangulated markers' limb proposals
@@ -65,8 +70,9 @@ class MarkerSettings:
         if self.cost not in COSTS:
             raise ValueError(f"marker_cost {self.cost!r} must be one of {', '.join(COSTS)}")
         if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0 \
-                or self.floor < 0 or self.threads < 1:
-            raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0")
+                or self.floor < 0 or self.threads < 1 or not 0 < self.alpha < 1:
+            raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0, "
+                             "0 < alpha < 1")
 
 
 def person_stature(centres: np.ndarray, voxel_size: float) -> float | None:
@@ -96,7 +102,7 @@ class MarkerPeople:
 
     def _tracker(self, track: int, height: float) -> MarkerTracker:
         s = self.s
-        return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, rho=s.rho, cost=s.cost,
+        return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, alpha=s.alpha, rho=s.rho, cost=s.cost,
                              seed=s.seed * 1_000_003 + int(track), proposals=s.proposals, support_px=s.support_px,
                              explain=s.explain, floor=s.floor)
 
@@ -127,6 +133,7 @@ class MarkerPeople:
             tracker = self._tracker(track, height)
             tracker.start(neutral_state(height, (float(position[0]), float(position[1]), None), 2 * np.pi * k / YAWS))
             tracker.filter.reset(tracker.state)   # the whole spread of the filter's diffusion
+            tracker.filter.alpha = SEARCH_ALPHA   # the wider search until the track has settled
             for _ in range(self.s.acquire):
                 tracker.step(detections)
             hypotheses.append([tracker, self._cost(tracker)])
@@ -137,6 +144,8 @@ class MarkerPeople:
         moved = np.asarray(position[:2], float) - self.starts[track][:2]
         walking = len(hypotheses) > 1 and np.hypot(*moved) > WALKED
         for h in hypotheses:
+            # a settling track still searches; a settled one anneals at the settings' alpha
+            h[0].filter.alpha = SEARCH_ALPHA if len(hypotheses) > 1 else self.s.alpha
             h[0].step(detections)
             h[1] += self._cost(h[0])
             if walking:   # a walking person faces the way they go (the model faces +x at yaw 0)
