@@ -63,6 +63,7 @@ class MarkerSettings:
     acquire: int = 4            # filter runs on a track's first frame
     settle: int = 10            # frames a new track is followed facing either way (0: one frame's cost picks)
     floor: float = 0.1          # m: the lower ankle's prior (app.markers.likelihood); 0 = none (the thesis)
+    polish: int = 3             # Gauss-Newton steps on the estimate's markers (app.markers.polish); 0: the thesis
     threads: int = 1            # people posed in parallel (each their own filter and random stream: same poses)
     seed: int = 0
 
@@ -70,9 +71,9 @@ class MarkerSettings:
         if self.cost not in COSTS:
             raise ValueError(f"marker_cost {self.cost!r} must be one of {', '.join(COSTS)}")
         if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0 \
-                or self.floor < 0 or self.threads < 1 or not 0 < self.alpha < 1:
+                or self.floor < 0 or self.threads < 1 or not 0 < self.alpha < 1 or self.polish < 0:
             raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0, "
-                             "0 < alpha < 1")
+                             "0 < alpha < 1, polish >= 0")
 
 
 def person_stature(centres: np.ndarray, voxel_size: float) -> float | None:
@@ -102,9 +103,9 @@ class MarkerPeople:
 
     def _tracker(self, track: int, height: float) -> MarkerTracker:
         s = self.s
-        return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, alpha=s.alpha, rho=s.rho, cost=s.cost,
-                             seed=s.seed * 1_000_003 + int(track), proposals=s.proposals, support_px=s.support_px,
-                             explain=s.explain, floor=s.floor)
+        return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, alpha=s.alpha, rho=s.rho,
+                             cost=s.cost, seed=s.seed * 1_000_003 + int(track), proposals=s.proposals,
+                             support_px=s.support_px, explain=s.explain, floor=s.floor, polish=s.polish)
 
     @staticmethod
     def _cost(tracker: MarkerTracker) -> float:
