@@ -41,11 +41,13 @@ def agreed_points(points: np.ndarray, radius: float = 0.03) -> np.ndarray:
     (module docstring)."""
     if len(points) < 2:
         return np.zeros((0, 3))
-    d = np.linalg.norm(points[:, None] - points[None], axis=2)
-    close = d < radius
+    diff = points[:, None] - points[None]
+    close = np.einsum("ijk,ijk->ij", diff, diff) < radius * radius
+    counts = close.sum(axis=1)
     out, taken = [], np.zeros(len(points), bool)
-    for k in np.argsort(-close.sum(axis=1)):
-        if taken[k] or close[k].sum() < 2:
+    order = np.argsort(-counts, kind="quicksort")
+    for k in order[counts[order] >= 2]:   # a point alone makes no group
+        if taken[k]:
             continue
         group = close[k] & ~taken
         taken |= group
@@ -70,14 +72,18 @@ def leg_ik(states: np.ndarray, side: str, targets: np.ndarray, height: float) ->
     cos_k = (thigh * thigh + shin * shin - d * d) / (2 * thigh * shin)
     knee = dofs[2]
     S[:, knee] = np.clip(np.pi - np.arccos(np.clip(cos_k, -1.0, 1.0)), LIMITS_LO[knee], LIMITS_HI[knee])
+    n = len(S)
+    probes = np.empty((len(dofs) + 1, n, S.shape[1]))
     for _ in range(IK_STEPS):
-        a = joints_subset(S, height, joint, need)[:, 0]
+        probes[:] = S                         # the rows and their finite-difference copies:
+        for k, d in enumerate(dofs):          # one kinematics call for all of them
+            probes[k + 1, :, d] += eps
+        ankles = joints_subset(probes.reshape(-1, S.shape[1]), height, joint, need)[:, 0].reshape(len(dofs) + 1, n, 3)
+        a = ankles[0]
         r = targets - a
-        J = np.empty((len(S), 3, len(dofs)))
-        for k, d in enumerate(dofs):
-            Sk = S.copy()
-            Sk[:, d] += eps
-            J[:, :, k] = (joints_subset(Sk, height, joint, need)[:, 0] - a) / eps
+        J = np.empty((n, 3, len(dofs)))
+        for k in range(len(dofs)):
+            J[:, :, k] = (ankles[k + 1] - a) / eps
         JtJ = np.einsum("nik,nil->nkl", J, J) + IK_DAMPING * np.eye(len(dofs))
         step = np.linalg.solve(JtJ, np.einsum("nik,ni->nk", J, r)[..., None])[..., 0]
         S[:, dofs] = np.clip(S[:, dofs] + step, LIMITS_LO[dofs], LIMITS_HI[dofs])
