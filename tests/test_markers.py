@@ -111,7 +111,7 @@ def test_the_polish_settles_an_estimate_near_the_truth_on_its_markers():
     truth = body.joints(truth_state)
     scorer = MarkerScorer(cams, 1.72, cost="both_ways", explain=3.0)
     before, after = [], []
-    for trial in range(5):
+    for _ in range(5):
         scorer.set_detections(synthetic_detections(truth[None], [1.72], cams, DetectorModel(0.9, 20, 4.0), rng)[0])
         start = truth_state + rng.normal(0.0, 0.5, len(SIGMA0)) * SIGMA0
         polished = polish(start, scorer, 3)
@@ -256,7 +256,8 @@ def test_a_person_is_acquired_from_markers_alone_and_a_restored_snapshot_carries
             assert np.array_equal(copy.update(dets, [7], truth[:1])[7][0], joints)
         if i == 2:
             assert len(people.people[7]) == 2   # still settling
-            copy = restore_people(cams, MarkerSettings(seed=5, floor=0.0, polish=0), through_npz(state_arrays(people)))
+            copy = restore_people(cams, MarkerSettings(seed=5, floor=0.0, polish=0),
+                                  through_npz(state_arrays(people)))
     assert errors[0] > 0.2 and max(errors[4:]) < 0.05, np.round(errors, 3)
     assert len(people.people[7]) == 1 and abs(people.tracker(7).model.height - 1.68) < 0.04
     assert people.update(dets, [], np.zeros((0, 3))) == {} and not people.people   # the track ended
