@@ -13,7 +13,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "undistort_step"]
+
+
+def undistort_step(x, y, xd, yd, k1, k2, p1, p2, k3):
+    """One fixed-point step inverting the lens model (OpenCV's k1 k2 p1 p2 k3) at the
+    distorted normalised point ``(xd, yd)`` from the guess ``(x, y)``: arrays or scalars
+    (:meth:`Camera.undistort_points`; compiled as is in numba kernels such as
+    :func:`app.markers.epipolar.ideal_pixels`', so both give the same numbers)."""
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return (xd - dx) / radial, (yd - dy) / radial
 
 
 @dataclass(frozen=True)
@@ -92,12 +104,7 @@ class Camera:
         k1, k2, p1, p2, k3 = self.dist
         x, y = xd.copy(), yd.copy()
         for _ in range(iterations):
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-            dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-            x = (xd - dx) / radial
-            y = (yd - dy) / radial
+            x, y = undistort_step(x, y, xd, yd, k1, k2, p1, p2, k3)
         return np.stack([x, y], axis=1)
 
     def pixel_rays(self, pixels: np.ndarray) -> np.ndarray:

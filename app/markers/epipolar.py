@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from calibration.camera import undistort_step
+
 __all__ = ["fundamental", "fundamentals", "ideal_pixels", "ideal_project", "line_distance",
            "symmetric_epipolar_distance", "generalised_epipolar_distance"]
 
@@ -59,6 +61,9 @@ def ideal_pixels(camera, pixels: np.ndarray) -> np.ndarray:
     return out
 
 
+_step = njit(nogil=True)(undistort_step)   # the camera's own step, compiled
+
+
 @njit(cache=True, nogil=True)
 def _undistort_ideal(uv, K, dist, iterations, out):
     """:func:`ideal_pixels`' kernel: the lens model (OpenCV's k1 k2 p1 p2 k3) inverted by
@@ -69,12 +74,7 @@ def _undistort_ideal(uv, K, dist, iterations, out):
         xd = (uv[i, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
         x, y = xd, yd
         for _ in range(iterations):
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-            dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-            x = (xd - dx) / radial
-            y = (yd - dy) / radial
+            x, y = _step(x, y, xd, yd, k1, k2, p1, p2, k3)
         out[i, 0] = K[0, 0] * x + K[0, 1] * y + K[0, 2]
         out[i, 1] = K[1, 1] * y + K[1, 2]
 
