@@ -133,7 +133,7 @@ def test_places_left_behind_and_where_tracks_stay_are_restored():
     """Saved after the person left the place they stood at (and while their track settles
     somewhere else), the restored tracker still refuses the ghost they left behind and
     carries on bit for bit; a snapshot of an earlier build (no such arrays) restores with
-    no place left behind."""
+    no place left behind, one whose places have no frame count restores them at 0."""
     from tests.test_tracking import _stands_then_leaves
 
     frames, _ = _stands_then_leaves()
@@ -155,3 +155,7 @@ def test_places_left_behind_and_where_tracks_stay_are_restored():
         assert len(ids_b) <= 1, sc.frame   # the ghost never a track
     older = {k: v for k, v in arrays.items() if k != "vacated" and not k.endswith(".anchor")}
     assert not restore_tracker(TrackerParams(), tree, older, DIMS).vacated
+    # the build before kept a place as (x, y) alone: it restores with no frames counted yet
+    two = {**arrays, "vacated": arrays["vacated"][:, :2]}
+    assert np.array_equal(restore_tracker(TrackerParams(), tree, two, DIMS).vacated[0],
+                          np.r_[first.vacated[0][:2], 0.0])

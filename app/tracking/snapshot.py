@@ -199,7 +199,12 @@ def restore_tracker(params: TrackerParams, classifier, arrays, dims=None) -> Mul
             raise SnapshotError("tracker snapshot: candidates and their sightings differ in number")
         tracker.candidates = [(c, int(a), int(b)) for c, (a, b) in zip(centres, sightings)]
         if "vacated" in arrays:
-            tracker.vacated.extend(np.array(v) for v in _array(arrays, "vacated", np.float64, (None, 3)))
+            places = _array(arrays, "vacated", np.float64, (None, None))
+            if places.shape[1] == 2:   # the build before counted no frames: none yet
+                places = np.hstack([places, np.zeros((len(places), 1))])
+            if places.shape[1] != 3:
+                raise SnapshotError("tracker snapshot: vacated is not a finite float64 array of shape (N, 3)")
+            tracker.vacated.extend(np.array(v) for v in places)
         if len(meta["ended"]) > MAX_TRACKS:
             raise SnapshotError("tracker snapshot: malformed ended tracks")
         for k, e in enumerate(meta["ended"]):
