@@ -308,7 +308,7 @@ class Worker(Restarts):
             else:
                 pub.put_payload(payload)
             if self.lossless:
-                self._keep_for_replay(msg.frame, key, payload)
+                self._keep_for_replay(msg.frame, msg.epoch, key, payload)
         again = msg.frame == self._redo   # counted by the earlier incarnation
         if again:
             self._redo = None

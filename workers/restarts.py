@@ -56,6 +56,7 @@ class Restarts:
         self.ledger.journal = self._journal
         self.incarnation = 0                 # restarts of this worker within the run
         self._replay: dict[int, list[tuple[str, bytes]]] = {}   # offline: frame -> its outputs, oldest first
+        self._replay_epochs: dict[int, int] = {}   # offline: frame -> the epoch its outputs are of
         self._replay_bytes = 0
         self._replay_to: set[str] | None = None  # consumers of this worker's outputs
         self.resent = 0                          # messages sent again to restarted consumers
@@ -162,13 +163,15 @@ class Restarts:
         return len(self._caught_up)
 
     # -- outputs sent again to a consumer that restarted (offline) ------------------------
-    def _keep_for_replay(self, frame: int, key: str, payload: bytes) -> None:
+    def _keep_for_replay(self, frame: int, epoch: int, key: str, payload: bytes) -> None:
         """Keep the outputs of the last :data:`REPLAY_FRAMES` frames: what was in flight to a
         consumer when it died (its inbox) is lost with it, and is sent again when it is back."""
         self._replay.setdefault(frame, []).append((key, payload))
+        self._replay_epochs[frame] = int(epoch)
         self._replay_bytes += len(payload)
         while len(self._replay) > REPLAY_FRAMES or (self._replay_bytes > REPLAY_BYTES and len(self._replay) > 1):
             oldest = next(iter(self._replay))
+            self._replay_epochs.pop(oldest, None)
             self._replay_bytes -= sum(len(p) for _, p in self._replay.pop(oldest))
 
     def _consumers(self) -> set[str]:
@@ -184,13 +187,21 @@ class Restarts:
 
     def _resend(self, name: str) -> None:
         """``name`` is back after a crash: send the kept outputs again (it skips what its
-        earlier incarnation finished; the other consumers skip them as repeats)."""
+        earlier incarnation finished; the other consumers skip them as repeats). Where they
+        span a restart of the source (two epochs), the newer epoch's follow the older's
+        after :data:`AGAIN_QUIET_S`, as the source itself put them out: a stage follows a
+        newer epoch only once the current one is quiet (:class:`app.admission.FrameWindow`),
+        and ``name``'s fresh window takes the older epoch from its first frames. Nothing is
+        put out meanwhile (the lock), so no newer frame overtakes them."""
         time.sleep(REPLAY_DELAY_S)
         with self._publish_lock:
-            items = [(k, p) for frame in list(self._replay) for k, p in self._replay[frame]]
-            for key, payload in items:
+            frames = list(self._replay)
+            items = [(self._replay_epochs.get(frame), k, p) for frame in frames for k, p in self._replay[frame]]
+            for i, (epoch, key, payload) in enumerate(items):
+                if i and epoch != items[i - 1][0]:
+                    time.sleep(AGAIN_QUIET_S)
                 self._publishers[key].put_payload(payload)
-            frames = sorted(self._replay)
+            frames.sort()
         self.resent += len(items)
         if items:
             self.log.info("%s is back: sent frames %d-%d again (%d messages)", name, frames[0], frames[-1], len(items))
@@ -236,7 +247,7 @@ class Restarts:
             for pub, (key, payload) in zip(pubs, outputs):
                 pub.put_payload(payload)
                 if self.lossless:
-                    self._keep_for_replay(msg.frame, key, payload)
+                    self._keep_for_replay(msg.frame, msg.epoch, key, payload)
         self.log.warning("put out frame %d again from the state arrays (%d messages)", msg.frame, len(outputs))
 
     # -- a source that restarted ------------------------------------------------------
