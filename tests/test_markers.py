@@ -400,28 +400,6 @@ def test_the_markers_the_detections_place_in_the_room_are_the_visible_joints():
     assert np.mean(d.min(axis=1) < 0.03) >= 0.8, np.round(d.min(axis=1), 3)
 
 
-def test_two_views_support_a_marker_only_where_no_third_view_can_see_it():
-    """Three cameras; one marker seen by views 0 and 1 lies outside view 2's image (a person
-    in a doorway that two cameras of the rig see), another lies inside view 2's image but
-    view 2 missed it. The first pair is supported (two views are all the rig has there);
-    the second is not (view 2 should have seen it: a chance match looks like that). With
-    ``unseen=False`` (the build before) neither is."""
-    from app.markers.epipolar import ideal_project
-    from app.markers.likelihood import supported_detections
-    cams = _rig()
-    outside, missed = np.array([0.1, -0.35, 1.0]), np.array([0.3, 0.2, 1.5])
-    assert not np.all((ideal_project(cams[2], outside[None])[0] >= 0))          # beyond view 2's image
-    assert np.all((ideal_project(cams[2], missed[None])[0] >= 0) & (ideal_project(cams[2], missed[None])[0] < 100))
-    ideal = [ideal_project(cams[0], np.stack([outside, missed])), ideal_project(cams[1], np.stack([outside, missed])),
-             np.array([[10.0, 10.0]])]   # a false detection on no epipolar line of the others
-    F = fundamentals(cams)
-    flags, points, pairs = supported_detections(ideal, cams, F, 2.0)
-    assert flags.tolist() == [True, False, True, False, False]
-    assert len(pairs) == 2 and np.allclose(points, outside[None], atol=1e-6)
-    flags, points, _ = supported_detections(ideal, cams, F, 2.0, unseen=False)
-    assert not flags.any() and len(points) == 0
-
-
 def test_the_viewer_scene_draws_the_triangulated_markers():
     from tests.test_viewer import _attribute, _frame_group
     from app.viewer.scene import MARKER_COLOUR, Scene

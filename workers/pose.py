@@ -104,7 +104,6 @@ class Pose(Worker):
         "marker_settle": 10,        # markers: frames a new track is followed facing either way
         "marker_floor": 0.1,        # markers: m, the lower ankle's floor prior; 0 = none (the thesis)
         "marker_polish": 3,         # markers: Gauss-Newton steps on the estimate's markers; 0 = none (the thesis)
-        "marker_unseen": True,      # markers: two views support a marker no third view can see
         "method": "shbm",           # shbm, apf, ddm, shbm+ddm, behaviour (Caillette's tracker, app.behaviour)
         "behaviour_start": 10,      # behaviour: a track's first frames posed by SHBM-APF, whose pose teaches the blobs
         "behaviour_particles": 500,  # behaviour: particles
@@ -272,8 +271,7 @@ class Pose(Worker):
                               alpha=float(p["marker_alpha"]), rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
                               proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
                               settle=int(p["marker_settle"]), floor=float(p["marker_floor"]),
-                              polish=int(p["marker_polish"]), unseen=bool(p["marker_unseen"]), seed=int(p["seed"]),
-                              threads=int(p["threads"]))
+                              polish=int(p["marker_polish"]), seed=int(p["seed"]), threads=int(p["threads"]))
 
     def _setup_markers(self) -> None:
         """Marker mode: the run's cameras, a detector in the layout, the kernels compiled."""

@@ -24,9 +24,9 @@ mean squared distance of the projections to their detections:
 freely, so two landmarks may share one marker (an elbow on the wrist's detections, the
 wrist's own missed) and score as well as the truth. So the detections are asked to be
 explained too: each *supported* detection (:func:`supported_detections`: a marker seen
-consistently from three views, or from the only two that can see it; a false detection
-rarely is) adds its distance to the nearest landmark projection of its view, in units of
-``rho`` (at most 1), and ``C`` gains ``explain`` times their mean. On the simulated clips it was tuned on the thesis's
+consistently from three views; a false detection rarely is) adds its distance to the
+nearest landmark projection of its view, in units of ``rho`` (at most 1), and ``C``
+gains ``explain`` times their mean. On the simulated clips it was tuned on the thesis's
 likelihood lost the person within a second; this one follows (docs/benchmarks.md).
 """
 from __future__ import annotations
@@ -154,17 +154,13 @@ def _triangulate(cam_a, cam_b, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     return 0.5 * (oa + s[:, None] * da + ob + t[:, None] * db)
 
 
-def supported_detections(ideal, cameras, F, tol: float, unseen: bool = True) -> tuple[np.ndarray, np.ndarray,
-                                                                                     np.ndarray]:
+def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which detections (flat, view by view) are a marker seen from several views: with
     three views or more, one detection of another view lies within ``tol`` of its epipolar
     line and the point the two triangulate projects within ``tol`` of a detection of a
     third view (a false detection rarely has both); with two views, the first test alone.
-    ``unseen``: also a pair whose point no third view can see (behind it or outside its
-    image): there the two views are all the rig has, as in a two-view rig (a person in the
-    doorway, seen by two cameras of four). Also the 3D points (K, 3) the supported pairs
-    triangulate (marker candidates), and those (K2, 3) of every consistent pair (a marker
-    two views see, or a chance match)."""
+    Also the 3D points (K, 3) the supported pairs triangulate (marker candidates), and
+    those (K2, 3) of every consistent pair (a marker two views see, or a chance match)."""
     n_views = len(ideal)
     out = [np.zeros(len(d), bool) for d in ideal]
     points, pairs = [], []
@@ -183,21 +179,14 @@ def supported_detections(ideal, cameras, F, tol: float, unseen: bool = True) -> 
                 points.append(X)
                 continue
             seen = np.zeros(len(qa), bool)
-            alone = np.full(len(qa), unseen) & (X[:, 2] > 0.0)   # above the floor, and no third view sees it
             for c in range(n_views):
-                if c in (a, b):
+                if c in (a, b) or not len(ideal[c]):
                     continue
                 pc = ideal_project(cameras[c], X)
-                if unseen:
-                    alone &= ~(np.isfinite(pc).all(axis=1) & (pc >= 0).all(axis=1)
-                               & (pc[:, 0] < cameras[c].width) & (pc[:, 1] < cameras[c].height))
-                if not len(ideal[c]):
-                    continue
                 near = np.linalg.norm(pc[:, None] - ideal[c][None], axis=2)
                 hit = np.min(near, axis=1) < tol
                 out[c][np.argmin(near, axis=1)[hit]] = True
                 seen |= hit
-            seen |= alone
             out[a][qa[seen]] = out[b][qb[seen]] = True
             points.append(X[seen])
     flags = np.concatenate(out) if out else np.zeros(0, bool)
@@ -223,14 +212,13 @@ class MarkerScorer:
     ``log_weights`` of a :class:`~app.pose.filters.APF` scorer)."""
 
     def __init__(self, cameras, height: float, rho: float = 20.0, sigma: float = 1.0, cost: str = "thesis",
-                 support_px: float = 6.0, candidates: bool = False, explain: float = 1.0, unseen: bool = True):
+                 support_px: float = 6.0, candidates: bool = False, explain: float = 1.0):
         if cost not in COSTS:
             raise ValueError(f"marker cost must be one of {', '.join(COSTS)}, got {cost!r}")
         self.cameras = list(cameras)
         self.height = float(height)
         self.rho, self.sigma, self.cost = float(rho), float(sigma), cost
         self.support_px = float(support_px)
-        self.unseen = bool(unseen)           # supported_detections: two views suffice where no third sees
         self.explain = float(explain)        # both_ways: the weight of the detections' term
         self.candidates = bool(candidates)   # keep the supported pairs' 3D points (the arms' proposals)
         self.points = np.zeros((0, 3))
@@ -255,7 +243,7 @@ class MarkerScorer:
         self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
         if self.cost == "both_ways" or self.candidates:
             self.supported, self.points, self.pair_points = supported_detections(ideal, self.cameras, self.F,
-                                                                                 self.support_px, self.unseen)
+                                                                                 self.support_px)
         else:
             self.supported, self.points = np.zeros(len(self.det), np.bool_), np.zeros((0, 3))
             self.pair_points = np.zeros((0, 3))

@@ -64,7 +64,6 @@ class MarkerSettings:
     settle: int = 10            # frames a new track is followed facing either way (0: one frame's cost picks)
     floor: float = 0.1          # m: the lower ankle's prior (app.markers.likelihood); 0 = none (the thesis)
     polish: int = 3             # Gauss-Newton steps on the estimate's markers (app.markers.polish); 0: the thesis
-    unseen: bool = True         # a pair of views supports a marker no third view can see (supported_detections)
     threads: int = 1            # people posed in parallel (each their own filter and random stream: same poses)
     seed: int = 0
 
@@ -106,8 +105,7 @@ class MarkerPeople:
         s = self.s
         return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, alpha=s.alpha, rho=s.rho,
                              cost=s.cost, seed=s.seed * 1_000_003 + int(track), proposals=s.proposals,
-                             support_px=s.support_px, explain=s.explain, floor=s.floor, polish=s.polish,
-                             unseen=s.unseen)
+                             support_px=s.support_px, explain=s.explain, floor=s.floor, polish=s.polish)
 
     @staticmethod
     def _cost(tracker: MarkerTracker) -> float:

@@ -64,17 +64,15 @@ class MarkerTracker:
     ``polish`` (3) Gauss-Newton steps on the markers it found (:mod:`app.markers.polish`;
     0: the thesis's estimate), and the particles take :data:`POLISH_FOLLOW` of that
     correction into the next frame (tuning, six seeds: MMTA 0.918 -> 0.950, MMTP 25.3 ->
-    16.2 mm; the estimate alone polished: 0.917, one run lost its person). With ``unseen``
-    two views that agree support a marker no third view can see (tuning 0.950 -> 0.961,
-    the doorway of enter2; held out 0.945 either way: docs/benchmarks.md)."""
+    16.2 mm; the estimate alone polished: 0.917, one run lost its person)."""
 
     def __init__(self, cameras, height: float, particles: int = 700, layers: int = 3, rho: float = 20.0,
                  sigma: float = 1.0, cost: str = "both_ways", alpha: float = 0.3, seed: int = 0,
                  proposals: float = 0.2, support_px: float = 6.0, explain: float = 3.0, floor: float = 0.1,
-                 polish: int = 3, unseen: bool = True):
+                 polish: int = 3):
         self.model = BodyModel(height)
         self.scorer = MarkerScorer(cameras, height, rho=rho, sigma=sigma, cost=cost, candidates=proposals > 0,
-                                   support_px=support_px, explain=explain, unseen=unseen)
+                                   support_px=support_px, explain=explain)
         self.scorer.floor = float(floor)
         self.filter = APF(particles=particles, layers=layers, alpha=alpha, rng=np.random.default_rng(seed),
                           importance_fraction=proposals)
