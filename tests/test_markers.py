@@ -92,6 +92,21 @@ def test_the_marker_apf_follows_a_walking_person_from_synthetic_detections():
     assert thesis["mmta"] < ours["mmta"] - 0.3, (thesis, ours)
 
 
+def test_the_marker_bench_runs_on_random_scenes():
+    """``--marker-scenes random:A:B``: the random scenes of those seeds (their own rigs and
+    people), scored per scene as well as pooled; a bad range is one clear error."""
+    from app.benchmarks.marker import bench_marker, format_table, scene_names
+    from app.errors import InputError
+    assert scene_names("walk1, random:3:5") == ("walk1", "random-3", "random-4")
+    with pytest.raises(InputError, match="--marker-scenes random:a:b: expected random:A:B"):
+        scene_names("random:a:b")
+    grid = {"dr": (0.9,), "fp": (0,), "sigma2": (4.0,), "filters": ((3, 700),)}
+    rows = bench_marker(("random-3", "random-4"), frames=15, grid=grid)
+    per = rows[0]["mmta_per_scene"]
+    assert set(per) == {"random-3", "random-4"} and min(per.values()) >= 0.8 and rows[0]["mmta"] >= 0.85, rows
+    assert "worst scene random-" in format_table(rows, ("random-3", "random-4"))
+
+
 def test_the_polish_settles_an_estimate_near_the_truth_on_its_markers():
     """An estimate within a layer's spread of the truth (walk1's rig, synthetic detections DR
     0.9, FP 20, sigma^2 4 px^2, the left arm forward and the right knee bent): three

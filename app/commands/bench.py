@@ -88,7 +88,9 @@ def add_arguments(p) -> None:
     p.add_argument("--pose-surface", action="store_true",
                    help="pose: hull voxels carry the reconstruction's visibility surface flags, as in the pipeline")
     p.add_argument("--marker-scenes", default="walk1,occluded1",
-                   help="marker: simulated scenes (default walk1,occluded1; gesture1 was the tuning scene)")
+                   help="marker: simulated scenes (default walk1,occluded1, held out; gesture1, statures3, "
+                        "meeting3, crowd6, still2 and enter2 were tuned on); random:A:B the random scenes of "
+                        "seeds A to B-1 (tune below 1000, report 1000 and up)")
     p.add_argument("--marker-cost", default="both_ways", choices=("thesis", "reprojection", "both_ways"),
                    help="marker: the likelihood (thesis: Eqs. 6.4-6.10; both_ways, the default: ours, "
                         "app/markers/likelihood.py)")
@@ -379,9 +381,9 @@ def _accuracy(args, out: Path) -> dict:
 
 
 def _marker(args, out: Path) -> dict:
-    from app.benchmarks.marker import bench_marker, format_table
+    from app.benchmarks.marker import bench_marker, format_table, scene_names
 
-    scenes = tuple(s for s in args.marker_scenes.split(",") if s)
+    scenes = scene_names(args.marker_scenes)
     grid = None
     if args.marker_grid == "full":   # Fig. 6.13: 360 detectors x 20 filters (hours)
         grid = {"dr": (1.0, 0.9, 0.8, 0.7, 0.6), "fp": (0, 20, 40, 60, 80, 100),
