@@ -318,14 +318,49 @@ def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01)
     return out.view(bool)
 
 
+def recording_backgrounds(recording, frames: int = 25, still_people: bool = True, log=None) -> dict:
+    """Every camera's background of a recording (camera -> BGR image), as the
+    segmentation worker makes them: the ``background/`` image where there is one, else the
+    estimate from ``frames`` frames with the people left out
+    (:func:`estimate_background_robust`); with ``still_people``, the people who stood
+    still through most of the recording, and so are in those estimates, are found with
+    the other cameras' views of the room and painted out of them
+    (:mod:`app.background_views`). ``log``: a logger told what was estimated and found."""
+    from app.background_views import repaint_backgrounds
+
+    out, estimated = {}, set()
+    for cam in recording.cameras:
+        background = recording.background(cam)
+        if background is None:
+            background, uncertain = estimate_background_robust(recording.sample(cam, frames))
+            estimated.add(cam)
+            if log is not None:
+                log.warning("camera %s: no background image; estimated from %d frames of the recording with the "
+                            "people left out; %.1f%% of the image stayed uncertain (someone there in almost every "
+                            "frame)", cam, frames, 100 * uncertain)
+        out[cam] = background
+    if still_people and estimated and recording.calibration is not None:
+        out, people, painted = repaint_backgrounds(recording.calibration, out, estimated)
+        if log is not None and people:
+            log.warning("%d people standing still were in the estimated backgrounds (at %s); painted out with the "
+                        "other cameras' view of the room: %s pixels", len(people),
+                        ", ".join(f"({p.centre[0]:.2f}, {p.centre[1]:.2f}) up to {p.top:.2f} m" for p in people),
+                        ", ".join(f"{c} {n}" for c, n in painted.items()))
+    return out
+
+
+_BACKGROUNDS: dict = {}
+
+
 def recording_background(recording, camera: str, frames: int = 25) -> np.ndarray:
-    """A recording's background image of ``camera``, or (no ``background/`` image) its
-    estimate from ``frames`` frames with the people left out, as the segmentation worker
-    makes it (offline tools that must segment as the pipeline does)."""
-    background = recording.background(camera)
-    if background is None:
-        background = estimate_background_robust(recording.sample(camera, frames))[0]
-    return background
+    """A recording's background image of ``camera`` as the segmentation worker makes it
+    (:func:`recording_backgrounds`; offline tools that must segment as the pipeline
+    does). The recording's backgrounds are computed once per process."""
+    key = (str(recording.path), int(frames))
+    if key not in _BACKGROUNDS:
+        _BACKGROUNDS.clear()
+        _BACKGROUNDS[key] = recording_backgrounds(recording, frames)
+    return _BACKGROUNDS[key][camera]
 
 
 def camera_segmenter(params: SegmentationParams, background: np.ndarray | None, calibration=None,

@@ -49,3 +49,54 @@ def test_still_person_is_reconstructed_without_an_empty_room_image(still):
     assert len(during) >= 6 and min(during) > 0.85, still_recall
     assert np.mean([r for _, r in still_recall]) > 0.9, still_recall
     assert np.mean([r for _, r in other_recall]) > 0.9, other_recall
+
+
+@pytest.fixture(scope="module")
+def still_throughout(tmp_path_factory):
+    """still2's first 3.5 s: person 1 stands still in every frame (person 2 walks), no empty-room images."""
+    return render_recording("still2", tmp_path_factory.mktemp("still") / "still2-start", seconds=3.5, fps=FPS,
+                            width=320, height=240)
+
+
+def _recall_of_the_still_person(rec, backgrounds):
+    segs = {c: CameraSegmenter(SegmentationParams(scale=2), backgrounds[c]) for c in rec.cameras}
+    recon = Reconstructor(rec.calibration, 0.04, mask_sizes={c: (160, 120) for c in rec.cameras}, colouring="none",
+                          min_top=0.25)
+    bodies = load_bodies(rec.path)
+    recall = []
+    for i, images in rec.frames():
+        idx = recon.carve({c: segs[c].apply(images[c]) for c in rec.cameras})
+        if i % 5:
+            continue
+        truth, who = true_occupancy(bodies[i], recon.grid.origin, 0.04, recon.grid.dims, with_person=True)
+        recall.append(float(recon.grid.dense(idx)[truth[:, 0], truth[:, 1], truth[:, 2]][who == 1].mean()))
+    return recall
+
+
+def test_a_person_still_in_every_frame_is_painted_out_of_the_estimate_by_the_other_views(still_throughout):
+    """Issue 22: a person who stands still through the whole recording is the median of
+    every camera; the other cameras' view of the walls and floor behind them finds them
+    and paints them out, so the masks show them again."""
+    from app.segmentation import recording_backgrounds
+
+    rec = Recording(still_throughout)
+    plain = recording_backgrounds(rec, still_people=False)
+    painted = recording_backgrounds(rec)
+    before, after = _recall_of_the_still_person(rec, plain), _recall_of_the_still_person(rec, painted)
+    assert np.mean(before) < 0.3, before            # the estimate holds them: hardly any voxel of them
+    assert min(after) > 0.5 and np.mean(after) > 0.55 and np.mean(after) > np.mean(before) + 0.35, (before, after)
+
+
+def test_the_empty_meeting_room_holds_no_one_standing_still():
+    """The table and the chairs are in every camera's background, seen against the floor
+    the others see under and behind them: the cones of their pixels meet above the table
+    (up to 1.44 m with the corner cameras at 2.4 m) as if someone stood there. Every such
+    pixel shows something low that two other cameras see too, so nothing is found and
+    nothing is painted."""
+    from app.background_views import repaint_backgrounds
+
+    sim = Simulator("still2", fps=FPS, width=320, height=240)
+    empty = {cam: sim.background(cam) for cam in sim.cameras}
+    out, people, painted = repaint_backgrounds(sim.calibration, empty, set(sim.cameras))
+    assert people == [] and painted == {}
+    assert all(out[cam] is empty[cam] for cam in sim.cameras)

@@ -5,8 +5,10 @@ downscaled colour image that voxel colouring needs.
 
 The background model starts from the recording's ``background/<cam>.png`` when there
 is one; otherwise from the per-pixel temporal median of frames spread across the
-recording (real sessions rarely have empty-room shots); live cameras learn it from
-the stream.
+recording (real sessions rarely have empty-room shots), and people who stood still
+through most of the recording, and so are in that median, are found with the other
+cameras' views of the room and painted out of it (``still_people``,
+:mod:`app.background_views`); live cameras learn it from the stream.
 
 ``markers``: a colour markers' chroma model (``smartroom markers learn``; ``recording``:
 the recording's ``markers.json``): the worker also detects the markers in each frame and
@@ -17,8 +19,8 @@ from __future__ import annotations
 
 from app.messages import Frame, Mask
 from app.recording import Recording
-from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmenter, estimate_background_robust,
-                              matched_scale, shrink, warm_up)
+from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmenter, matched_scale,
+                              recording_backgrounds, shrink, warm_up)
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
@@ -88,6 +90,7 @@ class Segmentation(Worker):
         "second_chance": 0.0,        # pixels next to the foreground farther than this from the background (0: off)
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
+        "still_people": True,        # ... and people standing still in it found with the other cameras, painted out
         "markers": "",               # the markers' chroma model: also detect them (recording: its markers.json)
     }
     RANGES = {"scale": (0, 16), "history": (1, 100000), "var_threshold": (0.1, 10000.0),
@@ -116,6 +119,7 @@ class Segmentation(Worker):
         self.scale, self.colour_scale = scales(self.spec, self.layout, calib)
         self.seg_params = SegmentationParams.from_params({**self.params, "scale": self.scale})
         self.segmenters: dict[str, CameraSegmenter] = {}
+        self.backgrounds = None
         # build the models before the first frame arrives (live: a model that learns from the
         # stream), and run the kernels once, so a live run's first frames are not lost to it
         cams = self.cameras() or (self.recording.cameras if self.recording else self.known_cameras) or []
@@ -132,15 +136,12 @@ class Segmentation(Worker):
         if self.recording is None:
             self.log.info("camera %s: live, the background model learns from the stream", cam)
             return None
-        background = self.recording.background(cam)
-        if background is None:
-            n = self.params["median_frames"]
-            self.status(f"estimating the background of {cam} from {n} frames of the recording")
-            background, uncertain = estimate_background_robust(self.recording.sample(cam, n))
-            self.log.warning("camera %s: no background image; estimated from %d frames of the recording with the "
-                             "people left out; %.1f%% of the image stayed uncertain (someone there in almost every "
-                             "frame)", cam, n, 100 * uncertain)
-        return background
+        if self.backgrounds is None:
+            if any(self.recording.background(c) is None for c in self.recording.cameras):
+                self.status(f"estimating the backgrounds from {self.params['median_frames']} frames of the recording")
+            self.backgrounds = recording_backgrounds(self.recording, self.params["median_frames"],
+                                                     bool(self.params["still_people"]), self.log)
+        return self.backgrounds[cam]
 
     def _segmenter(self, cam: str) -> CameraSegmenter:
         seg = self.segmenters.get(cam)
