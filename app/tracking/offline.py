@@ -27,11 +27,11 @@ class VoxelFrame:
 
 
 def _code_version() -> str:
-    """A hash of the code that makes the voxels (segmentation and reconstruction), so a
-    change there never replays voxels the old code made."""
+    """A hash of the code that makes the voxels (segmentation, the backgrounds' still
+    people, reconstruction), so a change there never replays voxels the old code made."""
     app = Path(__file__).resolve().parents[1]
     h = hashlib.sha1()
-    for f in [app / "segmentation.py", *sorted((app / "reconstruction").glob("*.py"))]:
+    for f in [app / "segmentation.py", app / "background_views.py", *sorted((app / "reconstruction").glob("*.py"))]:
         h.update(f.read_bytes())
     return h.hexdigest()[:12]
 
