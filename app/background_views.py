@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-
 from numba import njit
 
 from app.components import label_voxels
+from app.reconstruction.grid import VoxelGrid
 
 __all__ = ["ViewCheck", "StillPerson", "box_exits", "room_box_points", "explained_low", "other_views", "still_people",
            "repaint_backgrounds"]
@@ -103,17 +103,25 @@ def room_box_points(camera, room_min, room_max, factor: int):
     return pts.reshape(h, w, 3), ok.reshape(h, w)
 
 
-def _sample(camera, image, factor: int, pts):
-    """Colours (N, 3) float32 of ``image`` (shrunk by ``factor``) at the projections of
-    ``pts`` (N, 3); NaN where the point is behind the camera or off the image."""
+def _pixels(camera, pts, factor: int, shape):
+    """``(x, y, seen)``: the pixels (int64, of an image of ``shape`` shrunk by ``factor``)
+    where ``pts`` (N, 3) project, and which of them are in front of the camera and on the
+    image (``x`` and ``y`` only for those)."""
     uv, z = camera.project(pts, return_depth=True)
-    h, w = image.shape[:2]
+    h, w = shape[:2]
     with np.errstate(invalid="ignore"):
         x = np.floor((uv[:, 0] + 0.5) / factor)
         y = np.floor((uv[:, 1] + 0.5) / factor)
-        ok = (z > 1e-6) & (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        seen = (z > 1e-6) & (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    return x[seen].astype(np.int64), y[seen].astype(np.int64), seen
+
+
+def _sample(camera, image, factor: int, pts):
+    """Colours (N, 3) float32 of ``image`` (shrunk by ``factor``) at the projections of
+    ``pts`` (N, 3); NaN where the point is behind the camera or off the image."""
+    x, y, seen = _pixels(camera, pts, factor, image.shape)
     out = np.full((len(pts), 3), np.nan, np.float32)
-    out[ok] = image[y[ok].astype(np.int64), x[ok].astype(np.int64)]
+    out[seen] = image[y, x]
     return out
 
 
@@ -216,7 +224,8 @@ def explained_low(k, cameras, images, factors, ends, own, check):
 
 
 class _Views:
-    """The cameras, their backgrounds shrunk for the check and the room's box."""
+    """The cameras, their backgrounds shrunk for the check, the room's box and the
+    carving grid (the cells wholly inside the room)."""
 
     def __init__(self, calibration, backgrounds, check):
         self.cams = [calibration.camera(c) for c in calibration.names]
@@ -226,21 +235,20 @@ class _Views:
         self.lo = np.asarray(calibration.room_min, float)
         self.hi = np.asarray(calibration.room_max, float)
         self.box = [room_box_points(c, self.lo, self.hi, f) for c, f in zip(self.cams, self.factors)]
-        v = check.voxel
-        self.dims = tuple(int(d) for d in np.maximum(1, np.floor((self.hi - self.lo) / v).astype(int)))
-        axes = [self.lo[i] + (np.arange(self.dims[i]) + 0.5) * v for i in range(3)]
-        gx, gy, gz = np.meshgrid(*axes, indexing="ij")
-        self.centres = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+        dims = np.maximum(1, np.floor((self.hi - self.lo) / check.voxel).astype(int))
+        self.grid = VoxelGrid(self.lo, check.voxel, tuple(dims))
+        self.centres = self.grid.centres(np.argwhere(np.ones(self.grid.dims, bool)))
 
     def carve(self, check):
-        """The room's content (bool grid): cells that two cameras or more see on pixels
-        whose estimate differs from the other cameras' view of the room behind them
-        (suspect), and at most one sees through to a room surface the others agree on
-        (free). Also ``self.high``: the cells with two votes or more from suspect pixels
-        that nothing low explains (:func:`explained_low`), where people are looked for."""
+        """``(full, high, free)``: the room's content (bool grid: cells that two cameras
+        or more see on pixels whose estimate differs from the other cameras' view of the
+        room behind them (suspect), and at most one sees through to a room surface the
+        others agree on); the cells with two votes or more from suspect pixels that
+        nothing low explains (:func:`explained_low`), where people are looked for; and
+        per camera its pixels that see such a surface (free)."""
         n = len(self.centres)
-        votes, high, free = np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.int32)
-        self.free_pixels = []
+        votes, high, seen_free = np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.int32)
+        free = []
         for k, cam in enumerate(self.cams):
             pts, ok = self.box[k]
             h, w = ok.shape
@@ -254,34 +262,23 @@ class _Views:
                                                   own[suspect], check)
             consistent = (defined & (diff <= check.agree)).reshape(h, w)
             suspect, unexplained = suspect.reshape(h, w), unexplained.reshape(h, w)
-            self.free_pixels.append(consistent)
-            uv, z = cam.project(self.centres, return_depth=True)
-            with np.errstate(invalid="ignore"):
-                x = np.floor((uv[:, 0] + 0.5) / self.factors[k])
-                y = np.floor((uv[:, 1] + 0.5) / self.factors[k])
-                seen = (z > 1e-6) & (x >= 0) & (x < w) & (y >= 0) & (y < h)
-            xi, yi = x[seen].astype(np.int64), y[seen].astype(np.int64)
-            votes[seen] += suspect[yi, xi]
-            high[seen] += unexplained[yi, xi]
-            free[seen] += consistent[yi, xi]
-        self.high = (high >= 2).reshape(self.dims)
-        return ((votes >= 2) & (free <= 1)).reshape(self.dims)
+            free.append(consistent)
+            x, y, seen = _pixels(cam, self.centres, self.factors[k], ok.shape)
+            votes[seen] += suspect[y, x]
+            high[seen] += unexplained[y, x]
+            seen_free[seen] += consistent[y, x]
+        dims = self.grid.dims
+        return ((votes >= 2) & (seen_free <= 1)).reshape(dims), (high >= 2).reshape(dims), free
 
-    def seen_through(self, points) -> float:
+    def seen_through(self, points, free) -> float:
         """The largest share, over the cameras that see most of ``points``, of those
-        points on pixels where that camera sees a room surface the others agree on."""
+        points on ``free`` pixels (where that camera sees a room surface the others agree
+        on)."""
         worst = 0.0
         for k, cam in enumerate(self.cams):
-            free = self.free_pixels[k]
-            h, w = free.shape
-            uv, z = cam.project(points, return_depth=True)
-            with np.errstate(invalid="ignore"):
-                x = np.floor((uv[:, 0] + 0.5) / self.factors[k])
-                y = np.floor((uv[:, 1] + 0.5) / self.factors[k])
-                seen = (z > 1e-6) & (x >= 0) & (x < w) & (y >= 0) & (y < h)
-            if seen.mean() < 0.5:
-                continue
-            worst = max(worst, float(free[y[seen].astype(np.int64), x[seen].astype(np.int64)].mean()))
+            x, y, seen = _pixels(cam, points, self.factors[k], free[k].shape)
+            if seen.mean() >= 0.5:
+                worst = max(worst, float(free[k][y, x].mean()))
         return worst
 
 
@@ -294,32 +291,32 @@ def still_people(calibration, backgrounds: dict, check: ViewCheck = ViewCheck())
     the space just above it are content too. The person is looked for above the
     furniture, on the suspect pixels that nothing low explains."""
     views = _Views(calibration, backgrounds, check)
-    v, lo = check.voxel, views.lo
-    high = ((np.arange(views.dims[2]) + 0.5) * v + lo[2] >= check.furniture)[None, None, :]
-    full = views.carve(check)
-    above = full & high & views.high
+    grid = views.grid
+    full, high, free = views.carve(check)
+    heights = grid.origin[2] + (np.arange(grid.dims[2]) + 0.5) * grid.voxel_size
+    above = full & high & (heights >= check.furniture)[None, None, :]
     idx = np.argwhere(above)
     if not len(idx):
         return []
-    labels, n = label_voxels(idx, views.dims)
+    labels, n = label_voxels(idx, grid.dims)
     people = []
     for lab in range(n):
         mine = idx[labels == lab]
         if len(mine) < check.min_voxels:
             continue
-        top = float(lo[2] + (mine[:, 2].max() + 1) * v)
+        cells = grid.centres(mine)
+        top = float(cells[:, 2].max() + grid.voxel_size / 2)
         (x0, y0), (x1, y1) = mine[:, :2].min(axis=0), mine[:, :2].max(axis=0)
-        if top < check.min_top or max(x1 - x0 + 1, y1 - y0 + 1) * v > check.max_footprint:
+        if top < check.min_top or max(x1 - x0 + 1, y1 - y0 + 1) * grid.voxel_size > check.max_footprint:
             continue
-        centre = lo[:2] + (mine[:, :2].mean(axis=0) + 0.5) * v
-        if min((centre - lo[:2]).min(), (views.hi[:2] - centre).min()) < check.wall_gap:
+        centre = cells[:, :2].mean(axis=0)
+        if min((centre - views.lo[:2]).min(), (views.hi[:2] - centre).min()) < check.wall_gap:
             continue   # against a wall: a doorway (whose far side is no wall of the box), a shelf
-        if views.seen_through(lo + (mine + 0.5) * v) >= check.seen_through:
+        if views.seen_through(cells, free) >= check.seen_through:
             continue   # a camera sees the room through it: where two cameras' cones cross, not a person
         # the person's column: the content under that part, down to the floor
         x0, y0 = max(0, x0 - 1), max(0, y0 - 1)
-        column = np.argwhere(full[x0:x1 + 2, y0:y1 + 2, :]) + np.array([x0, y0, 0])
-        pts = lo + (column + 0.5) * v
+        pts = grid.centres(np.argwhere(full[x0:x1 + 2, y0:y1 + 2, :]) + np.array([x0, y0, 0]))
         people.append(StillPerson(tuple(round(float(c), 3) for c in pts.mean(axis=0)), round(top, 3), pts))
     return people
 

@@ -318,20 +318,23 @@ def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01)
     return out.view(bool)
 
 
-def recording_backgrounds(recording, frames: int = 25, still_people: bool = True, log=None) -> dict:
+def recording_backgrounds(recording, frames: int = 25, still_people: bool = True, log=None, status=None) -> dict:
     """Every camera's background of a recording (camera -> BGR image), as the
     segmentation worker makes them: the ``background/`` image where there is one, else the
     estimate from ``frames`` frames with the people left out
     (:func:`estimate_background_robust`); with ``still_people``, the people who stood
     still through most of the recording, and so are in those estimates, are found with
     the other cameras' views of the room and painted out of them
-    (:mod:`app.background_views`). ``log``: a logger told what was estimated and found."""
+    (:mod:`app.background_views`). ``log``: a logger told what was estimated and found;
+    ``status``: called with a line before each long step (a worker's set-up status)."""
     from app.background_views import repaint_backgrounds
 
     out, estimated = {}, set()
     for cam in recording.cameras:
         background = recording.background(cam)
         if background is None:
+            if status is not None:
+                status(f"estimating the background of {cam} from {frames} frames of the recording")
             background, uncertain = estimate_background_robust(recording.sample(cam, frames))
             estimated.add(cam)
             if log is not None:
@@ -340,6 +343,8 @@ def recording_backgrounds(recording, frames: int = 25, still_people: bool = True
                             "frame)", cam, frames, 100 * uncertain)
         out[cam] = background
     if still_people and estimated and recording.calibration is not None:
+        if status is not None:
+            status("looking for people standing still in the estimated backgrounds")
         out, people, painted = repaint_backgrounds(recording.calibration, out, estimated)
         if log is not None and people:
             log.warning("%d people standing still were in the estimated backgrounds (at %s); painted out with the "

@@ -137,10 +137,8 @@ class Segmentation(Worker):
             self.log.info("camera %s: live, the background model learns from the stream", cam)
             return None
         if self.backgrounds is None:
-            if any(self.recording.background(c) is None for c in self.recording.cameras):
-                self.status(f"estimating the backgrounds from {self.params['median_frames']} frames of the recording")
             self.backgrounds = recording_backgrounds(self.recording, self.params["median_frames"],
-                                                     bool(self.params["still_people"]), self.log)
+                                                     bool(self.params["still_people"]), self.log, self.status)
         return self.backgrounds[cam]
 
     def _segmenter(self, cam: str) -> CameraSegmenter:
