@@ -321,6 +321,21 @@ def still_people(calibration, backgrounds: dict, check: ViewCheck = ViewCheck())
     return people
 
 
+def _column_mask(cam, people, voxel: float) -> np.ndarray:
+    """The pixels (uint8, 255) of ``cam`` where the columns of ``people`` appear: a disc
+    per voxel of about its projected size."""
+    mask = np.zeros((cam.height, cam.width), np.uint8)
+    f = float(cam.K[0, 0])
+    for sp in people:
+        uv, z = cam.project(sp.points, return_depth=True)
+        with np.errstate(invalid="ignore"):
+            good = (z > 1e-6) & (np.abs(uv - [cam.width / 2, cam.height / 2]) < [cam.width, cam.height]).all(axis=1)
+        for (u, v), d in zip(uv[good], z[good]):
+            r = max(1, int(np.ceil(0.75 * voxel * f / d)))
+            cv2.circle(mask, (int(round(u)), int(round(v))), r, 255, -1)
+    return mask
+
+
 def repaint_backgrounds(calibration, backgrounds: dict, estimated, check: ViewCheck = ViewCheck()):
     """``(backgrounds, people, painted)``: the ``backgrounds`` with the people standing
     still (:func:`still_people`) painted out of the cameras in ``estimated`` (those whose
@@ -331,33 +346,27 @@ def repaint_backgrounds(calibration, backgrounds: dict, estimated, check: ViewCh
     if not people:
         return out, people, painted
     cams = [calibration.camera(c) for c in calibration.names]
-    originals = [backgrounds[c.name].astype(np.float32) for c in cams]
     ones = [1] * len(cams)
     lo, hi = np.asarray(calibration.room_min, float), np.asarray(calibration.room_max, float)
+    columns = [_column_mask(cam, people, check.voxel) for cam in cams]
+    # the other cameras' view of the room, less the people found: a wall or floor point
+    # that a camera sees behind one of them is not seen by it (NaN), or the person's
+    # colours, in every estimate that holds them, would be painted in as the room's
+    views = [backgrounds[c.name].astype(np.float32) for c in cams]
+    for view, mask in zip(views, columns):
+        view[mask > 0] = np.nan
     for k, cam in enumerate(cams):
         if cam.name not in estimated:
             continue
-        mask = np.zeros((cam.height, cam.width), np.uint8)
-        for sp in people:
-            uv, z = cam.project(sp.points, return_depth=True)
-            with np.errstate(invalid="ignore"):
-                good = (z > 1e-6) & (np.abs(uv - [cam.width / 2, cam.height / 2]) < [cam.width, cam.height]).all(axis=1)
-            if not good.any():
-                continue
-            # a voxel covers about voxel * f / z pixels: a disc of that radius per voxel
-            f = float(cam.K[0, 0])
-            for (u, w_), d in zip(uv[good], z[good]):
-                r = max(1, int(np.ceil(0.75 * check.voxel * f / d)))
-                cv2.circle(mask, (int(round(u)), int(round(w_))), r, 255, -1)
-        ys, xs = np.nonzero(mask)
+        ys, xs = np.nonzero(columns[k])
         if not len(ys):
             continue
         pts, ok = box_exits(cam, lo, hi, np.stack([xs, ys], axis=1))
-        colour, inliers = other_views(k, cams, originals, ones, pts, check.agree)
+        colour, inliers = other_views(k, cams, views, ones, pts, check.agree)
         image = out[cam.name].copy()
         own = image[ys, xs].astype(np.float32)
         paint = ok & (inliers >= 1) & (np.abs(own - np.nan_to_num(colour)).max(axis=1) > check.agree)
-        paint[paint] = ~explained_low(k, cams, originals, ones, pts[paint], own[paint], check)
+        paint[paint] = ~explained_low(k, cams, views, ones, pts[paint], own[paint], check)
         image[ys[paint], xs[paint]] = np.clip(np.rint(colour[paint]), 0, 255).astype(np.uint8)
         out[cam.name] = image
         painted[cam.name] = int(paint.sum())
