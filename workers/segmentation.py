@@ -88,7 +88,7 @@ class Segmentation(Worker):
         "shadow_residual": 6.0,      # ... colour within this many grey levels of the darkened background
         "fill_holes": 400,           # fill holes in a silhouette up to this area (full-size pixels; 0: none)
         "second_chance": 0.0,        # pixels next to the foreground farther than this from the background (0: off)
-        "exposure": 50,              # frames: each frame's brightness matched to its mean over about this many (0: off)
+        "exposure": 0,               # frames: each frame's brightness matched to its mean over about this many (0: off)
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
         "still_people": True,        # ... and people standing still in it found with the other cameras, painted out
