@@ -275,6 +275,16 @@ class CameraSegmenter:
             self.model.apply(shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
         self.trained = True
 
+    def _match_exposure(self) -> None:
+        """Scale ``small`` by its gain against ``reference`` over that gain's running mean
+        (``exposure``: the flicker goes, a steady offset stays; :func:`exposure_gain`)."""
+        self.gain = exposure_gain(self.small, self.reference)
+        self.usual_gain = self.gain if self.usual_gain is None else \
+            self.usual_gain + (self.gain - self.usual_gain) / self.params.exposure
+        flicker = self.gain / self.usual_gain
+        if abs(flicker - 1.0) > 0.002:
+            self.small = cv2.convertScaleAbs(self.small, alpha=1.0 / flicker)
+
     def apply(self, image: np.ndarray, prescaled: int = 1) -> np.ndarray:
         """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting.
         ``prescaled``: the image is already 1/prescaled of the camera's size (it divides scale)."""
@@ -283,15 +293,11 @@ class CameraSegmenter:
         rate = -1.0 if fast else self.params.learning_rate
         p = self.params
         self.small = shrink(image, p.scale // prescaled)
-        if p.exposure > 0 and not fast and self.reference is None:
-            self.reference = self.model.getBackgroundImage()   # None until the model has seen a frame
-        if p.exposure > 0 and not fast and self.reference is not None:
-            self.gain = exposure_gain(self.small, self.reference)
-            self.usual_gain = self.gain if self.usual_gain is None else \
-                self.usual_gain + (self.gain - self.usual_gain) / p.exposure
-            flicker = self.gain / self.usual_gain
-            if abs(flicker - 1.0) > 0.002:
-                self.small = cv2.convertScaleAbs(self.small, alpha=1.0 / flicker)
+        if p.exposure > 0 and not fast:
+            if self.reference is None:
+                self.reference = self.model.getBackgroundImage()   # None until the model has seen a frame
+            if self.reference is not None:
+                self._match_exposure()
         raw = self.model.apply(self.small, learningRate=rate)
         if p.shadow_floor > 0 or p.second_chance > 0 or p.exposure > 0:
             if self.reference is None or self.frames % 10 == 0 or fast:
