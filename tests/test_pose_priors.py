@@ -307,13 +307,16 @@ def test_crown_expects_the_head_under_the_top_and_pushes_only_a_lower_head():
 def test_crown_keeps_a_hull_without_its_chest_standing():
     """The masks lose a grey shirt against a grey wall (random scene 10): the 4 cm hull
     (k = 0) of gesture1 has nothing between 0.95 and 1.4 m. The scores alone let the body
-    sink into a crouch under the head's voxels; the crown holds it up."""
+    sink into a crouch under the head's voxels in some runs: of filter seeds 0-2, one sank
+    (MMTA 0.13 or 0.31, which one depends on the float rounding of numpy's SIMD path), the
+    others kept 0.84-0.95. The crown holds it up in every run: MMTA 0.88-0.94 (both
+    paths), asserted at least 0.75 for each seed (a body sunk into a crouch scores 0.1-0.3)."""
     clip, cal = simulated_clip("gesture1", range(0, 40), 0.04, source="hull", tolerance=0,
                                hide=lambda f, c: ~((c[:, 2] > 0.95) & (c[:, 2] < 1.4)))
     mmta = {}
-    for crown in (0.0, 0.03):
-        E = _posed_errors(clip, cal, 0.04, crown=crown)
-        mmta[crown] = float((E <= 0.1).mean())
-        print(f"crown {crown}: MMTA {mmta[crown]:.3f}, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
+    for seed in (0, 1, 2):
+        E = _posed_errors(clip, cal, 0.04, crown=0.03, seed=seed)
+        mmta[seed] = float((E <= 0.1).mean())
+        print(f"crown 0.03, seed {seed}: MMTA {mmta[seed]:.3f}, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
               f"pelvis median {1e3 * np.median(E[:, J['pelvis']]):.0f} mm")
-    assert mmta[0.03] >= 0.75 and mmta[0.03] > mmta[0.0] + 0.3, mmta
+    assert min(mmta.values()) >= 0.75, mmta
