@@ -68,7 +68,7 @@ class SegmentationParams:
                                     # than this (grey levels, Euclidean over BGR) is foreground too; 0 = off
     exposure: int = 0               # frames: each frame's brightness is scaled to its running mean over about
                                     # this many first (flicker: :func:`exposure_gain`); 0 = off (the thesis;
-                                    # the default until the built-in scenes' tests are rechecked with it)
+                                    # the default until meeting3's figures and the RTF are measured with it)
 
     @classmethod
     def from_params(cls, params: dict) -> "SegmentationParams":
