@@ -67,8 +67,9 @@ class SegmentationParams:
     second_chance: float = 0.0      # a pixel next to the foreground that differs from the background by more
                                     # than this (grey levels, Euclidean over BGR) is foreground too; 0 = off
     exposure: int = 0               # frames: each frame's brightness is scaled to its running mean over about
-                                    # this many first (flicker: :func:`exposure_gain`); 0 = off (the thesis;
-                                    # the default until meeting3's figures and the RTF are measured with it)
+                                    # this many first (flicker: :func:`exposure_gain`); 0 = off (the thesis
+                                    # and the default: on the tuning seeds 50 lowers the mean MMTA, and its
+                                    # tracking gain is one seed's; docs/benchmarks.md, "Flicker ...")
 
     @classmethod
     def from_params(cls, params: dict) -> "SegmentationParams":
