@@ -325,3 +325,37 @@ def test_shards_and_threads_pose_each_person_as_one_estimator_does():
             assert np.array_equal(want[tid][0], got[tid][0]) and np.array_equal(want[tid][0], both[tid][0])
     sizes = {tid: sum(p.filter.sizes) for est in shards for tid, p in est.people.items()}
     assert set(sizes.values()) == {25 * N_DOF}   # each shard's people: the budget of three
+
+
+def test_a_person_s_own_limb_proportions_stretch_the_bones_and_keep_the_stature():
+    """Legs 6 % longer (the trunk shorter by what they gain) and arms 6 % shorter: thigh,
+    shin, upper arm and forearm follow, standing the ankles stay on the floor and the neck,
+    head and shoulders where the average body has them; the average is the thesis's model,
+    the same arrays bit for bit, and the flesh stretches with its bones."""
+    from app.pose.flesh import PART, build_flesh
+    from app.pose.model import AVERAGE, JOINT_LOCAL, SEG_OFFSET, Proportions, standing_root_height
+
+    H = 1.8
+    assert AVERAGE.seg_offset is SEG_OFFSET and AVERAGE.joint_local is JOINT_LOCAL
+    p = Proportions(legs=1.06, arms=0.94)
+    avg, own = BodyModel(H), BodyModel(H, p)
+    y_avg = neutral_state(H)
+    y_own = y_avg.copy()
+    y_own[DOF["z"]] = standing_root_height(H, p)
+    a, b = avg.joints(y_avg), own.joints(y_own)
+
+    def bone(X, u, v):
+        return np.linalg.norm(X[J[u]] - X[J[v]])
+
+    for u, v, k in (("l_hip", "l_knee", 1.06), ("r_knee", "r_ankle", 1.06), ("l_shoulder", "l_elbow", 0.94),
+                    ("r_elbow", "r_wrist", 0.94)):
+        assert bone(b, u, v) == pytest.approx(k * bone(a, u, v))
+    for name in ("neck", "head", "l_shoulder", "r_shoulder", "l_ankle", "r_ankle"):
+        np.testing.assert_allclose(b[J[name]][2], a[J[name]][2], atol=1e-12)
+    assert b[J["l_hip"]][2] - a[J["l_hip"]][2] == pytest.approx(0.06 * 0.486 * H)
+    f_avg, f_own = build_flesh(H, 0.04), build_flesh(H, 0.04, proportions=p)
+    for part, k in (("l_thigh", 1.06), ("r_forearm", 0.94)):
+        z_avg = np.ptp(f_avg.points[f_avg.part == PART[part], 2])
+        z_own = np.ptp(f_own.points[f_own.part == PART[part], 2])
+        assert abs(z_own - k * z_avg) <= 0.04
+    np.testing.assert_array_equal(build_flesh(H, 0.04, proportions=AVERAGE).points, f_avg.points)

@@ -71,3 +71,23 @@ def test_a_snapshot_that_does_not_fit_is_refused(clip):
             restore_estimator(_settings(cal), {**arrays, "meta": meta})
     with pytest.raises(SnapshotError):
         restore_estimator(_settings(cal), {k: v for k, v in arrays.items() if k != "meta"})
+
+
+def test_a_restored_estimator_carries_on_the_limb_proportions_fit(clip):
+    """Cut while the proportions are being weighed (frames 5-12): the restored estimator
+    ends the fit as the undisturbed one does and poses the same from then on."""
+    frames, cal = clip
+    kw = dict(proportions="fit", proportion_frames=8)
+    whole = PoseEstimator(_settings(cal, **kw))
+    first = PoseEstimator(_settings(cal, **kw))
+    for fr in frames[:8]:
+        _step(whole, fr), _step(first, fr)
+    assert all(0 < p.fit.seen < p.fit.frames for p in first.people.values())
+    again = restore_estimator(_settings(cal, **kw), through_npz(estimator_state(first)))
+    for fr in frames[8:]:
+        a, b = _step(whole, fr), _step(again, fr)
+        assert a.keys() == b.keys() and a
+        for tid in a:
+            assert np.array_equal(a[tid][0], b[tid][0]), (fr.frame, tid)
+    for tid, p in whole.people.items():
+        assert p.fit.done and again.people[tid].proportions == p.proportions

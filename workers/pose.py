@@ -140,6 +140,10 @@ class Pose(Worker):
         "share": None,              # [k, n]: pose the tracks with id % n == k (several pose workers)
         "surface": "outer",         # V^S of the consensus subset: outer (no enclosed cavities) or boundary (earlier)
         "stature": "axis",          # the blob's top for the stature: near the body axis, or top (anywhere; earlier)
+        "proportions": "average",   # limb lengths: the stature's average fractions (the thesis), or fit: legs and arms
+                                    # weighed on the person's voxels over their first proportion_frames
+                                    # (app.pose.proportions)
+        "proportion_frames": 40,
         "stance": 0.03,             # m: ankles under the hips while the track stands still; 0 = off
         "ground": 0.01,             # m: no ankle below its standing height (with floor > 0); 0 = off (the offline
                                     # core's default: on true-body voxels it costs gesture1 0.01;
@@ -177,9 +181,9 @@ class Pose(Worker):
                "method": ("shbm", "apf", "ddm", "shbm+ddm", "behaviour"), "likelihood": ("partitioned", "global"),
                "behaviour_evaluation": ("model", "kl", "voxels"), "behaviour_recovery": ("shbm", "prototypes"),
                "ik": ("table", "straight"), "voxels": ("consensus", "tolerant", "all"),
-               "surface": ("outer", "boundary"), "stature": ("axis", "top")}
+               "surface": ("outer", "boundary"), "stature": ("axis", "top"), "proportions": ("average", "fit")}
     RANGES = {"density": (1.0, 4.0), "particles": (20, 5000), "layers": (1, 12), "gamma": (2, 500),
-              "gamma_budget": (0, 5000), "gamma_min": (2, 500),
+              "gamma_budget": (0, 5000), "gamma_min": (2, 500), "proportion_frames": (1, 10000),
               "importance_fraction": (0.0, 1.0), "low_legs": (0.0, 1.0), "reach": (0.2, 3.0), "coverage": (0.0, 10.0),
               "floor": (0.0, 10.0),
               "heading": (0.0, 10.0), "toes": (0.0, 10.0), "feet": (0.0, 10.0), "stance": (0.0, 10.0),

@@ -33,7 +33,7 @@ from numba import njit
 
 from app.messages import JOINTS
 from app.pose.flesh import PART
-from app.pose.model import JOINT_LOCAL, JOINT_SEG, SEG_PARENT, SEGMENTS, joints_subset
+from app.pose.model import AVERAGE, JOINT_LOCAL, JOINT_SEG, SEG_PARENT, SEGMENTS, Proportions, joints_subset
 
 __all__ = ["PersonKeypoints", "person_keypoints", "keypoint_penalty", "triangulate", "keypoint_hands", "frame_keypoints", "JOINT_PART"]
 
@@ -119,9 +119,10 @@ def _penalty(joints, R, t, obs, w, gate, inv2s2, out):
 
 
 def keypoint_penalty(states: np.ndarray, height: float, person: PersonKeypoints, sigma: float, gate: float = 0.3,
-                     min_conf: float = 0.5, active=None) -> np.ndarray:
+                     min_conf: float = 0.5, active=None, proportions: Proportions = AVERAGE) -> np.ndarray:
     """``-log p(z^kp | x)`` up to a constant for states ``(n, 27)``: ``sum_j D_j^2 / (2 sigma^2)``
-    (module docstring); ``active`` (parts) restricts it to the joints of the scored parts."""
+    (module docstring); ``active`` (parts) restricts it to the joints of the scored parts;
+    ``proportions``: the person's (:class:`app.pose.model.Proportions`)."""
     states = np.asarray(states, dtype=np.float64).reshape(-1, 27)
     out = np.zeros(len(states))
     w = person.weights(min_conf)
@@ -131,7 +132,7 @@ def keypoint_penalty(states: np.ndarray, height: float, person: PersonKeypoints,
     if not use.any() or not len(states):
         return out
     idx = np.flatnonzero(use)   # the model's joints are computed for these only (a partial model: the torso's)
-    joints = joints_subset(states, height, idx)
+    joints = joints_subset(states, height, idx, proportions=proportions)
     _penalty(joints, np.ascontiguousarray(person.R),
              np.ascontiguousarray(person.t), np.ascontiguousarray(person.obs[:, idx]), np.ascontiguousarray(w[:, idx]),
              float(gate), 0.5 / (sigma * sigma), out)

@@ -95,7 +95,8 @@ from numba import njit
 from app.messages import JOINTS
 from app.pose.flesh import PARTS
 from app.pose.likelihood import Scorer, log_likelihood, normalise
-from app.pose.model import joints_subset, neutral_state, segments_needed, standing_root_height, standing_top
+from app.pose.model import (AVERAGE, Proportions, joints_subset, neutral_state, segments_needed,
+                            standing_root_height, standing_top)
 from app.pose.silhouette import silhouette_coverage
 from app.keypoints.fusion import keypoint_penalty
 
@@ -106,11 +107,12 @@ _ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.
 _ANKLE_NEED = segments_needed(_ANKLES)   # forward kinematics of the legs only
 
 
-def floor_penalty(states: np.ndarray, height: float, sigma: float, both: float = 0.0) -> np.ndarray:
+def floor_penalty(states: np.ndarray, height: float, sigma: float, both: float = 0.0,
+                  proportions: Proportions = AVERAGE) -> np.ndarray:
     """``0.5 ((z_low - 0.039 H)_+ / sigma)^2`` per state, ``z_low`` the lower ankle's height;
     ``both > 0`` adds ``0.5 ((z_high - 0.039 H)_+ / both)^2`` for the higher ankle (a
     person standing still keeps both feet down)."""
-    z = joints_subset(states, height, _ANKLES, _ANKLE_NEED)[:, :, 2]
+    z = joints_subset(states, height, _ANKLES, _ANKLE_NEED, proportions)[:, :, 2]
     rest = 0.039 * height
     out = 0.5 * (np.maximum(z.min(axis=1) - rest, 0.0) / sigma) ** 2
     if both > 0:
@@ -126,12 +128,13 @@ _LEGS_HEAD_NEED = segments_needed(_LEGS_HEAD)
 STANCE_FREE = 0.08
 
 
-def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float = STANCE_FREE) -> np.ndarray:
+def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float = STANCE_FREE,
+                   proportions: Proportions = AVERAGE) -> np.ndarray:
     """``sum_sides 0.5 ((|ankle_xy - hip_xy| - free)_+ / sigma)^2`` over the sides whose
     hip is at least 0.9 of its standing height (an upright leg: a particle sitting or
     kneeling is not held): a person standing still has the feet under the hips."""
-    j = joints_subset(states, height, _LEGS, _LEGS_NEED)
-    upright_z = 0.9 * (standing_root_height(height) - 0.025 * height)
+    j = joints_subset(states, height, _LEGS, _LEGS_NEED, proportions)
+    upright_z = 0.9 * (standing_root_height(height, proportions) - 0.025 * height)
     out = np.zeros(len(j))
     for hip, ankle in ((0, 1), (2, 3)):
         d = np.hypot(j[:, ankle, 0] - j[:, hip, 0], j[:, ankle, 1] - j[:, hip, 1])
@@ -141,7 +144,7 @@ def stance_penalty(states: np.ndarray, height: float, sigma: float, free: float 
 
 
 def leg_penalties(states: np.ndarray, height: float, floor: float, both: float = 0.0, stance: float = 0.0,
-                  ground: float = 0.0, crown=None):
+                  ground: float = 0.0, crown=None, proportions: Proportions = AVERAGE):
     """:func:`floor_penalty` (deviation ``floor``, ``both``) and, when ``stance > 0``,
     :func:`stance_penalty` (else None) from one forward kinematics of the legs and one
     loop: the same numbers as the two functions (the ankles are the same whichever
@@ -150,13 +153,14 @@ def leg_penalties(states: np.ndarray, height: float, floor: float, both: float =
     :func:`crown_penalty` (the head from the same forward kinematics: the legs' and the
     head's chains share the root, and one pass costs less than two)."""
     if crown is not None:
-        j = joints_subset(states, height, _LEGS_HEAD, _LEGS_HEAD_NEED)
+        j = joints_subset(states, height, _LEGS_HEAD, _LEGS_HEAD_NEED, proportions)
     else:
-        j = joints_subset(states, height, _LEGS, _LEGS_NEED)
+        j = joints_subset(states, height, _LEGS, _LEGS_NEED, proportions)
     fl = np.empty(len(j))
     st = np.empty(len(j)) if stance > 0 else None
-    _leg_penalties(j, 0.039 * height, float(floor), float(both), 0.9 * (standing_root_height(height) - 0.025 * height),
-                   float(stance), STANCE_FREE, fl, st if st is not None else fl[:0])
+    _leg_penalties(j, 0.039 * height, float(floor), float(both),
+                   0.9 * (standing_root_height(height, proportions) - 0.025 * height), float(stance), STANCE_FREE, fl,
+                   st if st is not None else fl[:0])
     if ground > 0:
         fl += _ground(j[:, 1:4:2, 2], 0.039 * height, ground)
     if crown is not None:
@@ -168,13 +172,13 @@ def _ground(z: np.ndarray, rest: float, sigma: float) -> np.ndarray:
     return 0.5 * ((np.maximum(rest - z, 0.0) / sigma) ** 2).sum(axis=1)
 
 
-def ground_penalty(states: np.ndarray, height: float, sigma: float) -> np.ndarray:
+def ground_penalty(states: np.ndarray, height: float, sigma: float, proportions: Proportions = AVERAGE) -> np.ndarray:
     """``sum_ankles 0.5 ((0.039 H - z)_+ / sigma)^2``: no ankle below its standing height
     (the foot is under it; the floor prior only pulls the lower ankle *down* to that
     height). On the pipeline's hulls the swing leg, its shin carved by one camera, was
     posed with the ankle 3-5 cm into the floor (walk1: 5 % of the posed ankles under
     38 mm, the true ones never under 69 mm; meeting3 13 mm)."""
-    j = joints_subset(states, height, _ANKLES, _ANKLE_NEED)
+    j = joints_subset(states, height, _ANKLES, _ANKLE_NEED, proportions)
     return _ground(j[:, :, 2], 0.039 * height, sigma)
 
 
@@ -194,10 +198,11 @@ def crown_expectation(top: float, height: float, voxel_size: float) -> float:
     return min(float(top), full) - (full - HEAD_STANDING * height)
 
 
-def crown_penalty(states: np.ndarray, height: float, expected: float, sigma: float) -> np.ndarray:
+def crown_penalty(states: np.ndarray, height: float, expected: float, sigma: float,
+                  proportions: Proportions = AVERAGE) -> np.ndarray:
     """``0.5 ((expected - CROWN_FREE - z_head)_+ / sigma)^2``: the head no lower than the
     top of the person's voxels says (``expected`` from :func:`crown_expectation`)."""
-    return _crown(joints_subset(states, height, _HEAD, _HEAD_NEED)[:, 0, 2], expected, sigma)
+    return _crown(joints_subset(states, height, _HEAD, _HEAD_NEED, proportions)[:, 0, 2], expected, sigma)
 
 
 def _crown(z: np.ndarray, expected: float, sigma: float) -> np.ndarray:
@@ -290,17 +295,19 @@ class CoverageScorer(Scorer):
             lw = lw - self._silhouette_penalty(states, act)
         if self.keypoints is not None:
             person, sigma, gate, conf = self.keypoints
-            lw = lw - keypoint_penalty(states, self.flesh.height, person, sigma, gate, conf, act)
+            lw = lw - keypoint_penalty(states, self.flesh.height, person, sigma, gate, conf, act,
+                                       self.flesh.proportions)
         crown = self.crown if act[PARTS.index("head")] else None
         if self.floor > 0 and act[PARTS.index("l_shin")] | act[PARTS.index("r_shin")]:
             floor, stance = leg_penalties(states, self.flesh.height, self.floor, self.both_feet,
-                                          self.stance if self.both_feet > 0 else 0.0, self.ground, crown)
+                                          self.stance if self.both_feet > 0 else 0.0, self.ground, crown,
+                                          self.flesh.proportions)
             crown = None   # counted with the legs
             lw = lw - floor
             if stance is not None:
                 lw = lw - stance
         if crown is not None:
-            lw = lw - crown_penalty(states, self.flesh.height, *crown)
+            lw = lw - crown_penalty(states, self.flesh.height, *crown, self.flesh.proportions)
         if self.anchor is not None:
             lw = lw - anchor_penalty(states, *self.anchor)
         if self.heading is not None:
@@ -308,6 +315,19 @@ class CoverageScorer(Scorer):
             d = np.angle(np.exp(1j * (np.asarray(states)[:, 3] - yaw)))
             lw = lw - 0.5 * (d / sigma) ** 2
         return lw
+
+    def log_weights_as(self, states: np.ndarray, flesh, lut, silhouette_lut=None, active=None) -> np.ndarray:
+        """:meth:`log_weights` of another body of the same person (:mod:`app.pose.proportions`):
+        this frame's observation and terms, that body's ``flesh`` with its kernel ``lut``
+        (and ``silhouette_lut`` for the silhouette term), the ``active`` parts (None: all)."""
+        keep = self.flesh, self.lut, self.silhouette, self.evaluations
+        self.flesh, self.lut = flesh, lut
+        if self.silhouette is not None:
+            self.silhouette = self.silhouette[:2] + (silhouette_lut,)
+        try:
+            return self.log_weights(states, active)
+        finally:
+            self.flesh, self.lut, self.silhouette, self.evaluations = keep
 
     def _silhouette_penalty(self, states, act) -> np.ndarray:
         """``(1 - rho_Sil)^2 / (2 sigma^2)`` of :mod:`app.pose.silhouette` (whole model only)."""

@@ -9,7 +9,9 @@ function); later frames draw a fraction of the first layer from it (IAPF). Limb
 lengths follow the stature, estimated from the top of the person's blob over the
 first ``height_frames`` frames (``1.02 H``: the top of the head is a little above the
 stature of the model), near the body axis (``stature = "axis"``; ``"top"`` the highest
-voxel, which a raised hand lifts).
+voxel, which a raised hand lifts), in the average proportions; ``proportions = "fit"``
+reads legs and arms from the person's next ``proportion_frames`` frames
+(:mod:`app.pose.proportions`; off by default: it is not reliable on hulls).
 
 The likelihood is the thesis's (Eqs. 6.13-6.25) with three additions for the fat voxels
 of a visual hull, all selectable (``coverage = 0, floor = 0, heading = 0`` is the
@@ -40,7 +42,8 @@ from app.pose.flesh import build_flesh
 from app.pose.likelihood import kernel_lut
 from app.pose.coverage import CoverageScorer, crown_expectation
 from app.pose.facing import FacingVote, floor_footprint, frame_vote
-from app.pose.model import BodyModel, neutral_state, posed_tracks, stature_from_top
+from app.pose.model import AVERAGE, BodyModel, Proportions, neutral_state, posed_tracks, stature_from_top
+from app.pose.proportions import ProportionFit, on_body
 from app.pose.observation import observe
 from app.keypoints.fusion import keypoint_hands
 
@@ -92,6 +95,9 @@ class PoseSettings:
     low_legs: float = 0.5           # share of the importance draws with a lowered root whose legs bend to the floor
                                     # (sitting, app.pose.detections.Importance); 0 = off
     height_frames: int = 5
+    proportions: str = "average"    # limb lengths: the stature's average fractions (the thesis) or fit to the
+                                    # person's voxels over their first proportion_frames (app.pose.proportions)
+    proportion_frames: int = 40
     behaviour_start: int = 10       # behaviour: frames posed by SHBM-APF before the blobs are learnt
     behaviour_particles: int = 500  # behaviour: particles (the paper's Table 1: 100-1000)
     behaviour_lambda: float = 0.5   # behaviour: lambda of Eq. 4, the local dynamics' noise attenuation
@@ -134,6 +140,8 @@ class PoseSettings:
                              "must be >= 0 (0 switches them off)")
         if self.stature not in ("axis", "top"):
             raise ValueError(f"stature {self.stature!r} must be axis or top")
+        if self.proportions not in ("average", "fit") or self.proportion_frames < 1:
+            raise ValueError(f"proportions {self.proportions!r} must be average or fit, proportion_frames >= 1")
         if self.surface not in ("outer", "boundary"):
             raise ValueError(f"surface {self.surface!r} must be outer or boundary")
         if not self.density >= 1:
@@ -236,6 +244,7 @@ def blob_top(centres: np.ndarray, axis: bool = True, band: float = 0.75, radius:
 
 
 _FLESH_CACHE: dict = {}
+_LUT_CACHE: dict = {}
 _BEHAVIOUR_MODELS: dict = {}
 
 
@@ -248,11 +257,19 @@ def behaviour_model(path: str = ""):
     return _BEHAVIOUR_MODELS[path]
 
 
-def _flesh(height, voxel_size, density):
-    key = (round(height, 2), round(voxel_size, 4), float(density))
+def _flesh(height, voxel_size, density, proportions: Proportions = AVERAGE):
+    key = (round(height, 2), round(voxel_size, 4), float(density), proportions)
     if key not in _FLESH_CACHE:
-        _FLESH_CACHE[key] = build_flesh(key[0], voxel_size, density)
+        _FLESH_CACHE[key] = build_flesh(key[0], voxel_size, density, proportions)
     return _FLESH_CACHE[key]
+
+
+def _lut(height, voxel_size, density, proportions: Proportions = AVERAGE):
+    """:func:`~app.pose.likelihood.kernel_lut` of :func:`_flesh`, kept as it is."""
+    key = (round(height, 2), round(voxel_size, 4), float(density), proportions)
+    if key not in _LUT_CACHE:
+        _LUT_CACHE[key] = kernel_lut(_flesh(height, voxel_size, density, proportions))
+    return _LUT_CACHE[key]
 
 
 class PersonPose:
@@ -264,6 +281,8 @@ class PersonPose:
         self.rng = rng
         self.tops: list[float] = []
         self.height = None
+        self.proportions = AVERAGE
+        self.fit = ProportionFit(settings.proportion_frames) if settings.proportions == "fit" else None
         self.filter = None
         self.switch = None
         self.state = None
@@ -274,17 +293,19 @@ class PersonPose:
         self.handback = 0       # behaviour: frames SHBM-APF still poses after the tracker was lost
         self.vote = FacingVote()  # the feet's vote for the way the person faces (app.pose.facing)
 
-    def build(self, height: float) -> None:
-        """The body, its fleshed model and scorer and a fresh filter for stature ``height``."""
+    def build(self, height: float, proportions: Proportions = AVERAGE) -> None:
+        """The body, its fleshed model and scorer and a fresh filter for stature ``height``
+        and limb ``proportions``."""
         s = self.s
         self.height = height
-        self.model = BodyModel(height)
-        self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density), s.likelihood, s.coverage,
+        self.proportions = proportions
+        self.model = BodyModel(height, proportions)
+        self.scorer = CoverageScorer(_flesh(height, s.voxel_size, s.density, proportions), s.likelihood, s.coverage,
                                      s.coverage_partial, s.floor)
         self.scorer.stance = s.stance
         self.scorer.ground = s.ground   # applied with the floor prior (CoverageScorer.log_weights)
         # the silhouette term's model points: a lattice of about one silhouette pixel (app.pose.silhouette)
-        self.silhouette_lut = (kernel_lut(_flesh(height, s.voxel_size, s.silhouette_density))
+        self.silhouette_lut = (_lut(height, s.voxel_size, s.silhouette_density, proportions)
                                if s.silhouette > 0 else None)
         kw = dict(rng=self.rng, importance_fraction=s.importance_fraction)
         if s.method.startswith("shbm") or s.method == "behaviour":   # behaviour: SHBM-APF's first frames
@@ -321,7 +342,7 @@ class PersonPose:
             h = stature_from_top(max(self.tops), s.voxel_size)
             if abs(h - self.height) > 0.015:   # the stature grows with more views of the top
                 keep = self.filter
-                self.build(h)
+                self.build(h, self.proportions)
                 self.filter.particles = keep.particles
         if self.tracker is not None and not self.handback and s.behaviour_evaluation != "model":
             return self._behaviour(self.tracker.step(centres, colours, position), position)
@@ -373,6 +394,8 @@ class PersonPose:
         est = self.filter.step(self.scorer, active=active, importance=importance)
         if self.switch is not None:
             est = self.switch.update(self.scorer, self.filter, est)
+        if self.fit is not None and not self.fit.done and self.frames >= s.height_frames:
+            est = self._fit_proportions(est)
         joints = None
         if s.toes > 0:   # a walker's feet (one lifting, one landing) say little: no vote, the old ones fade
             joints = self.model.joints(est)
@@ -388,6 +411,30 @@ class PersonPose:
             if not self.handback:
                 self.tracker.restart(est, position)
         return self._posed(est, position, joints)
+
+    def _fit_proportions(self, est: np.ndarray) -> np.ndarray:
+        """One frame of :class:`~app.pose.proportions.ProportionFit` (its nudges drawn from
+        a stream of the seed, the person and the frame, so the filter's own stays as it
+        is); the fit done, the person's body becomes the chosen one (the filter's particles
+        kept, as when the stature grows) and the estimate is moved onto it."""
+        s, fit = self.s, self.fit
+        sil = self.scorer.silhouette
+
+        def score(states, body, active):
+            return self.scorer.log_weights_as(states, _flesh(self.height, s.voxel_size, s.density, body),
+                                              _lut(self.height, s.voxel_size, s.density, body),
+                                              _lut(self.height, s.voxel_size, s.silhouette_density, body)
+                                              if sil is not None else None, active)
+
+        fit.weigh(est, self.height, self.proportions, score, np.random.default_rng([s.seed, self.id, self.frames]))
+        choice = fit.choice()
+        if not fit.done or choice == self.proportions:
+            return est
+        moved = on_body(est, self.height, self.proportions, choice)
+        keep = self.filter
+        self.build(self.height, choice)
+        self.filter.particles = keep.particles
+        return moved
 
     def _behaviour(self, est: np.ndarray, position):
         """A frame the behaviour tracker posed; lost, SHBM-APF poses the next

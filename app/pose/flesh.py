@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.pose.model import SEGMENT
+from app.pose.model import AVERAGE, SEGMENT, SHIN, Proportions
 
 __all__ = ["PARTS", "PART", "Flesh", "build_flesh", "LIMBS", "LIMB_JOINTS"]
 
@@ -111,6 +111,7 @@ class Flesh:
     part and surface flag; ``spacing`` is the model's voxel size ``s_V_HBM``."""
 
     height: float
+    proportions: Proportions   # the kinematic kernels' offsets for this person (app.pose.model)
     spacing: float
     points: np.ndarray     # (M, 3) segment-local, metres
     segment: np.ndarray    # (M,) int64
@@ -124,14 +125,33 @@ class Flesh:
         return len(self.points)
 
 
-def build_flesh(height: float, voxel_size: float, density: float = 1.0) -> Flesh:
-    """Discretise every part's cones in the neutral pose at spacing ``density * voxel_size``."""
+def _proportioned(segment: str, cones, proportions: Proportions):
+    """A part's cones for a person of ``proportions``: stretched along the segment as its
+    bone (the radii stay), a foot moved with the shin's end."""
+    k = proportions.part_scale(segment)
+    if k == 1.0:
+        return cones
+    out = []
+    for c in cones:
+        if c[0] == "z":
+            out.append((c[0], c[1] * k, c[2] * k) + tuple(c[3:]))
+        else:   # a foot: hangs from the ankle, the shin's end
+            dz = -SHIN * (k - 1.0)
+            out.append((c[0], (c[1][0], c[1][1], c[1][2] + dz), (c[2][0], c[2][1], c[2][2] + dz)) + tuple(c[3:]))
+    return out
+
+
+def build_flesh(height: float, voxel_size: float, density: float = 1.0,
+                proportions: Proportions = AVERAGE) -> Flesh:
+    """Discretise every part's cones in the neutral pose at spacing ``density * voxel_size``
+    for a person of stature ``height`` and ``proportions``."""
     if not density >= 1.0:
         raise ValueError(f"density factor {density} must be >= 1 (Eq. 6.26)")
     h = float(voxel_size) * float(density)
     pts, seg, part, surf = [], [], [], []
     offsets = np.array([[h, 0, 0], [-h, 0, 0], [0, h, 0], [0, -h, 0], [0, 0, h], [0, 0, -h]])
     for q, (name, segment, cones) in enumerate(_PARTS):
+        cones = _proportioned(segment, cones, proportions)
         lo, hi = _bounds(cones, height)
         axes = [np.arange(lo[i] + h / 2, hi[i], h) for i in range(3)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -148,7 +168,8 @@ def build_flesh(height: float, voxel_size: float, density: float = 1.0) -> Flesh
     part = np.concatenate(part)
     surf = np.concatenate(surf)
     Q = len(_PARTS)
-    return Flesh(height=float(height), spacing=h, points=np.ascontiguousarray(np.concatenate(pts)),
+    return Flesh(height=float(height), proportions=proportions, spacing=h,
+                 points=np.ascontiguousarray(np.concatenate(pts)),
                  segment=np.concatenate(seg).astype(np.int64), part=part.astype(np.int64), surface=surf,
                  part_size=np.bincount(part, minlength=Q).astype(np.float64),
                  surface_size=np.bincount(part[surf], minlength=Q).astype(np.float64))

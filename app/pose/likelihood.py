@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from app.pose.flesh import PART, PARTS, Flesh
-from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_PARENT, fk_segments
 from app.pose.observation import Observation
 
 __all__ = ["Scorer", "SIGMA2", "part_variances", "log_likelihood", "score_particles", "Lut", "kernel_lut"]
@@ -301,6 +301,7 @@ class Lut:
     part_centre: np.ndarray   # (Q, 3)
     part_half: np.ndarray     # (Q, 3)
     part_needs: np.ndarray    # (Q, S) bool: the segments whose pose the part needs
+    seg_offset: np.ndarray    # (S, 3) the person's segment offsets (app.pose.model.Proportions)
 
 
 def kernel_lut(flesh: Flesh) -> Lut:
@@ -327,7 +328,8 @@ def kernel_lut(flesh: Flesh) -> Lut:
             needs[q, s] = True
             s = SEG_PARENT[s]
     surface = np.bincount(part[flesh.surface[order]], minlength=Q).astype(np.int64)
-    return Lut(*(np.ascontiguousarray(pts[:, i]) for i in range(3)), start, segment, surface, centre, half, needs)
+    return Lut(*(np.ascontiguousarray(pts[:, i]) for i in range(3)), start, segment, surface, centre, half, needs,
+               flesh.proportions.seg_offset)
 
 
 class Scorer:
@@ -387,7 +389,7 @@ class Scorer:
                         self._grid, self._sentinel, self._dims, self._origin, obs.voxel_size,
                         np.asarray(obs.room_lo, np.float64), np.asarray(obs.room_hi, np.float64),
                         self._stamp, self._do_dims, f.spacing, self._token, out,
-                        SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS)
+                        SEG_PARENT, lut.seg_offset, DOF_SEGMENT, DOF_AXIS)
         self._token += len(states)
         self.evaluations += len(states)
         return out

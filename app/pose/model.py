@@ -33,7 +33,7 @@ from numba import njit
 from app.messages import JOINTS
 
 __all__ = ["DOFS", "DOF", "SEGMENTS", "SEGMENT", "DOF_SEGMENT", "DOF_AXIS", "LIMITS_LO", "LIMITS_HI",
-           "SIGMA0", "BodyModel", "exp_map", "neutral_state", "N_DOF", "N_SEG"]
+           "SIGMA0", "BodyModel", "Proportions", "AVERAGE", "exp_map", "neutral_state", "N_DOF", "N_SEG"]
 
 INF = np.inf
 #: ``(name, segment, axis, lo, hi, sigma0)``: the state vector. Angular limits are the
@@ -250,6 +250,71 @@ def fk_joints_subset_batch(states, height, seg_parent, seg_offset, dof_segment, 
                                                    + R[s, i, 2] * joint_local[j, 2])
 
 
+#: Shares of the stature of the legs (hip to ankle), the trunk (pelvis to neck) and the
+#: arm (shoulder to wrist) in the average proportions above.
+LEG_SHARE, TRUNK_SHARE = 0.240 + SHIN, 0.295
+
+
+class Proportions:
+    """A person's limb lengths against the average fractions above (issue 22): ``legs``
+    scales thigh and shin, ``arms`` upper arm, forearm and hand; the trunk takes what the
+    legs give or take so that the stature stays (as :func:`app.simulation.body.trunk_for_legs`:
+    the shoulders stay 0.035 H under the neck). ``seg_offset`` and ``joint_local`` are
+    :data:`SEG_OFFSET` and :data:`JOINT_LOCAL` for this person (the same arrays, bit for
+    bit, for the average), what every kinematic kernel takes."""
+
+    __slots__ = ("legs", "arms", "torso", "seg_offset", "joint_local")
+
+    def __init__(self, legs: float = 1.0, arms: float = 1.0):
+        if not (0.8 <= legs <= 1.2 and 0.8 <= arms <= 1.2):
+            raise ValueError(f"proportions legs {legs}, arms {arms} are outside 0.8 .. 1.2")
+        self.legs, self.arms = float(legs), float(arms)
+        self.torso = (TRUNK_SHARE + LEG_SHARE * (1.0 - self.legs)) / TRUNK_SHARE
+        if self.legs == 1.0 and self.arms == 1.0:
+            self.seg_offset, self.joint_local = SEG_OFFSET, JOINT_LOCAL
+            return
+        off = SEG_OFFSET.copy()
+        off[SEGMENT["head"], 2] = TRUNK_SHARE * self.torso
+        for side in "lr":
+            off[SEGMENT[f"{side}_upper_arm"], 2] += off[SEGMENT["head"], 2] - TRUNK_SHARE   # 0.035 H under the neck
+            off[SEGMENT[f"{side}_forearm"], 2] *= self.arms
+            off[SEGMENT[f"{side}_shin"], 2] *= self.legs
+        local = JOINT_LOCAL.copy()
+        for j, name in enumerate(JOINTS):
+            if name.endswith("wrist"):
+                local[j] *= self.arms
+            elif name.endswith("ankle"):
+                local[j] *= self.legs
+        self.seg_offset, self.joint_local = np.ascontiguousarray(off), np.ascontiguousarray(local)
+
+    @property
+    def average(self) -> bool:
+        return self.legs == 1.0 and self.arms == 1.0
+
+    def part_scale(self, segment: str) -> float:
+        """The factor of a segment's length along its z axis (its flesh's cones)."""
+        if segment in ("l_thigh", "r_thigh", "l_shin", "r_shin"):
+            return self.legs
+        if segment in ("l_upper_arm", "r_upper_arm", "l_forearm", "r_forearm"):
+            return self.arms
+        if segment == "torso":
+            return self.torso
+        return 1.0
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Proportions) and (self.legs, self.arms) == (other.legs, other.arms)
+
+    def __hash__(self) -> int:
+        return hash((self.legs, self.arms))
+
+    def __repr__(self) -> str:
+        return f"Proportions(legs={self.legs:g}, arms={self.arms:g})"
+
+
+#: Drillis & Contini's average, the thesis's model
+AVERAGE = Proportions()
+
+
 def segments_needed(joints) -> np.ndarray:
     """``need (S,)`` for :func:`fk_segments`: the segments of ``joints`` and their ancestors."""
     need = np.zeros(len(SEG_PARENT), dtype=np.bool_)
@@ -261,16 +326,18 @@ def segments_needed(joints) -> np.ndarray:
     return need
 
 
-def joints_subset(states: np.ndarray, height: float, joints: np.ndarray, need: np.ndarray | None = None) -> np.ndarray:
+def joints_subset(states: np.ndarray, height: float, joints: np.ndarray, need: np.ndarray | None = None,
+                  proportions: Proportions = AVERAGE) -> np.ndarray:
     """``(P, len(joints), 3)``: the ``joints`` (int64 indices into the 15) of states
     ``(P, 27)``, the same numbers as :meth:`BodyModel.joints`, from the segments they
-    need only (``need`` from :func:`segments_needed`, computed when not given)."""
+    need only (``need`` from :func:`segments_needed`, computed when not given), for a
+    person of stature ``height`` and ``proportions``."""
     joints = np.asarray(joints, dtype=np.int64)
     need = segments_needed(joints) if need is None else need
     states = np.ascontiguousarray(states, dtype=np.float64)
     out = np.empty((len(states), len(joints), 3))
-    fk_joints_subset_batch(states, float(height), SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, JOINT_SEG,
-                           JOINT_LOCAL, joints, need, out)
+    fk_joints_subset_batch(states, float(height), SEG_PARENT, proportions.seg_offset, DOF_SEGMENT, DOF_AXIS,
+                           JOINT_SEG, proportions.joint_local, joints, need, out)
     return out
 
 
@@ -302,28 +369,30 @@ def standing_top(height: float, voxel_size: float) -> float:
     return TOP_OVER_STATURE * height - voxel_size / 2
 
 
-def standing_root_height(height: float) -> float:
+def standing_root_height(height: float, proportions: Proportions = AVERAGE) -> float:
     """Height of the root (pelvis joint) above the floor standing straight: ankle
     (0.039 H) + shin + thigh + hips below the root."""
-    return (0.039 + SHIN + 0.240 + 0.025) * height
+    return (0.039 + LEG_SHARE * proportions.legs + 0.025) * height
 
 
 class BodyModel:
     """The kinematic model of one person of a given height (metres)."""
 
-    def __init__(self, height: float = 1.75):
+    def __init__(self, height: float = 1.75, proportions: Proportions = AVERAGE):
         if not 1.0 <= height <= 2.3:
             raise ValueError(f"body height {height} m is outside 1.0 .. 2.3 m")
         self.height = float(height)
+        self.proportions = proportions
 
     def offsets(self) -> np.ndarray:
         """Segment origin offsets in the parent's frame (metres), :data:`SEGMENTS` order."""
-        return SEG_OFFSET * self.height
+        return self.proportions.seg_offset * self.height
 
     def forward(self, y) -> tuple[np.ndarray, np.ndarray]:
         """Segment rotations ``(11, 3, 3)`` and origins ``(11, 3)`` of the state ``y``."""
         R, O = np.empty((N_SEG, 3, 3)), np.empty((N_SEG, 3))
-        fk_segments(np.asarray(y, dtype=np.float64), self.height, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, R, O)
+        fk_segments(np.asarray(y, dtype=np.float64), self.height, SEG_PARENT, self.proportions.seg_offset,
+                    DOF_SEGMENT, DOF_AXIS, R, O)
         return R, O
 
     def joints(self, y) -> np.ndarray:
@@ -331,8 +400,8 @@ class BodyModel:
         y = np.asarray(y, dtype=np.float64)
         batch = np.atleast_2d(y)
         out = np.empty((batch.shape[0], len(JOINTS), 3))
-        fk_joints_batch(np.ascontiguousarray(batch), self.height, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS,
-                        JOINT_SEG, JOINT_LOCAL, out)
+        fk_joints_batch(np.ascontiguousarray(batch), self.height, SEG_PARENT, self.proportions.seg_offset,
+                        DOF_SEGMENT, DOF_AXIS, JOINT_SEG, self.proportions.joint_local, out)
         return out[0] if y.ndim == 1 else out
 
     @staticmethod

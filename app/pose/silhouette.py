@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_OFFSET, SEG_PARENT, fk_segments, posed_tracks
+from app.pose.model import DOF_AXIS, DOF_SEGMENT, SEG_PARENT, fk_segments, posed_tracks
 
 __all__ = ["CameraRays", "SilhouetteView", "PersonSilhouettes", "silhouette_coverage", "coarsening", "warm_up"]
 
@@ -244,7 +244,8 @@ def silhouette_coverage(states, height, lut, active, person: PersonSilhouettes, 
     out = np.empty(len(states))
     _coverage(np.ascontiguousarray(states, dtype=np.float64), float(height), lut.lx, lut.ly, lut.lz,
               lut.part_start, lut.part_segment, lut.part_surface, np.asarray(active, np.bool_), person.intrinsics,
-              person.R, person.t, person.grids, stamp, int(token), person.counts, SEG_PARENT, SEG_OFFSET, DOF_SEGMENT, DOF_AXIS, out)
+              person.R, person.t, person.grids, stamp, int(token), person.counts, SEG_PARENT, lut.seg_offset,
+              DOF_SEGMENT, DOF_AXIS, out)
     return out
 
 

@@ -8,8 +8,9 @@ objects: a snapshot is data, loading it runs no code); :func:`restore_estimator`
 an estimator from it, or raises :class:`SnapshotError` when it does not fit (another
 format, other settings, missing or malformed arrays).
 
-Per person: the track id, stature (and the tops it was read from), frames posed, the
-last track position and smoothed velocity, the feet's vote for the facing, the state
+Per person: the track id, stature (and the tops it was read from), limb proportions (and
+their fit's sums while it runs), frames posed, the last track position and smoothed
+velocity, the feet's vote for the facing, the state
 estimate, the random generator's state, the particle sets (SHBM-APF: one per model, with
 their sizes; APF: one) and, with DDM, the limb switch (which units are on, their last
 check and the scouts of the lost ones); with the behaviour method once it took over, its
@@ -29,7 +30,7 @@ from app.pose.estimator import PersonPose, PoseEstimator, PoseSettings
 from app.pose.facing import FacingVote
 from app.pose.filters import SHBMAPF
 from app.pose.flesh import LIMBS
-from app.pose.model import N_DOF
+from app.pose.model import N_DOF, Proportions
 
 __all__ = ["SnapshotError", "estimator_state", "restore_estimator"]
 
@@ -51,7 +52,10 @@ def estimator_state(est: PoseEstimator) -> dict[str, np.ndarray]:
     for tid, p in est.people.items():
         entry = {"id": int(tid), "tops": [float(t) for t in p.tops], "frames": int(p.frames),
                  "height": None if p.height is None else float(p.height),
-                 "rng": p.rng.bit_generator.state, "filter": None}
+                 "rng": p.rng.bit_generator.state, "filter": None,
+                 "proportions": [p.proportions.legs, p.proportions.arms]}
+        if p.fit is not None:
+            entry["fit"] = {"seen": int(p.fit.seen), "sums": [float(v) for v in p.fit.sums.ravel()]}
         for name in ("state", "last_position", "velocity"):
             value = getattr(p, name)
             if value is not None:
@@ -184,8 +188,13 @@ def restore_estimator(settings: PoseSettings, arrays) -> PoseEstimator:
             p.last_position = _vector(arrays, f"p{tid}.last_position", 3)
             p.velocity = _vector(arrays, f"p{tid}.velocity", 3)
             p.vote = FacingVote(_vector(arrays, f"p{tid}.vote", 2))   # a snapshot without it: no vote yet
+            if p.fit is not None and "fit" in entry:
+                if len(entry["fit"]["sums"]) != p.fit.sums.size:
+                    raise SnapshotError("pose snapshot: the proportions' fit does not fit")
+                p.fit.seen = int(entry["fit"]["seen"])
+                p.fit.sums = np.array(entry["fit"]["sums"], dtype=np.float64).reshape(p.fit.sums.shape)
             if entry["height"] is not None:
-                p.build(float(entry["height"]))
+                p.build(float(entry["height"]), Proportions(*entry.get("proportions", (1.0, 1.0))))
                 f, spec = p.filter, entry["filter"]
                 if spec["kind"] != ("shbm" if isinstance(f, SHBMAPF) else "apf"):
                     raise SnapshotError("pose snapshot: made with another pose method")
