@@ -250,8 +250,8 @@ def fk_joints_subset_batch(states, height, seg_parent, seg_offset, dof_segment, 
                                                    + R[s, i, 2] * joint_local[j, 2])
 
 
-#: Shares of the stature of the legs (hip to ankle), the trunk (pelvis to neck) and the
-#: arm (shoulder to wrist) in the average proportions above.
+#: Shares of the stature of the legs (hip to ankle) and the trunk (pelvis to neck) in the
+#: average proportions above.
 LEG_SHARE, TRUNK_SHARE = 0.240 + SHIN, 0.295
 
 
@@ -286,10 +286,6 @@ class Proportions:
             elif name.endswith("ankle"):
                 local[j] *= self.legs
         self.seg_offset, self.joint_local = np.ascontiguousarray(off), np.ascontiguousarray(local)
-
-    @property
-    def average(self) -> bool:
-        return self.legs == 1.0 and self.arms == 1.0
 
     def part_scale(self, segment: str) -> float:
         """The factor of a segment's length along its z axis (its flesh's cones)."""
