@@ -257,8 +257,12 @@ def behaviour_model(path: str = ""):
     return _BEHAVIOUR_MODELS[path]
 
 
+def _body_key(height, voxel_size, density, proportions):
+    return round(height, 2), round(voxel_size, 4), float(density), proportions
+
+
 def _flesh(height, voxel_size, density, proportions: Proportions = AVERAGE):
-    key = (round(height, 2), round(voxel_size, 4), float(density), proportions)
+    key = _body_key(height, voxel_size, density, proportions)
     if key not in _FLESH_CACHE:
         _FLESH_CACHE[key] = build_flesh(key[0], voxel_size, density, proportions)
     return _FLESH_CACHE[key]
@@ -266,7 +270,7 @@ def _flesh(height, voxel_size, density, proportions: Proportions = AVERAGE):
 
 def _lut(height, voxel_size, density, proportions: Proportions = AVERAGE):
     """:func:`~app.pose.likelihood.kernel_lut` of :func:`_flesh`, kept as it is."""
-    key = (round(height, 2), round(voxel_size, 4), float(density), proportions)
+    key = _body_key(height, voxel_size, density, proportions)
     if key not in _LUT_CACHE:
         _LUT_CACHE[key] = kernel_lut(_flesh(height, voxel_size, density, proportions))
     return _LUT_CACHE[key]

@@ -39,22 +39,34 @@ TRIES = 24
 
 _ANKLES = np.array([JOINTS.index("l_ankle"), JOINTS.index("r_ankle")], dtype=np.int64)
 _ANKLE_NEED = segments_needed(_ANKLES)
-_GROUPS = {
-    "legs": (("pelvis", "l_thigh", "l_shin", "r_thigh", "r_shin"),
-             tuple(f"{s}_{d}" for s in "lr" for d in ("hip_flex", "hip_abd", "hip_rot", "knee"))),
-    "arms": (("l_upper_arm", "l_forearm", "r_upper_arm", "r_forearm"),
-             tuple(f"{s}_{d}" for s in "lr" for d in ("sh_flex", "sh_abd", "sh_rot", "elbow"))),
-}
+
+def _group(parts, dofs, body):
+    """A candidate group: the parts it scores, its limb DoFs and its bodies (FACTORS order)."""
+    return (np.isin(np.array(PARTS), parts), np.array([DOF[d] for d in dofs]), [body(f) for f in FACTORS])
 
 
-def on_body(state: np.ndarray, height: float, now: Proportions, other: Proportions) -> np.ndarray:
+#: legs, then arms
+_GROUPS = (
+    _group(("pelvis", "l_thigh", "l_shin", "r_thigh", "r_shin"),
+           [f"{s}_{d}" for s in "lr" for d in ("hip_flex", "hip_abd", "hip_rot", "knee")],
+           lambda f: Proportions(legs=f)),
+    _group(("l_upper_arm", "l_forearm", "r_upper_arm", "r_forearm"),
+           [f"{s}_{d}" for s in "lr" for d in ("sh_flex", "sh_abd", "sh_rot", "elbow")],
+           lambda f: Proportions(arms=f)),
+)
+
+
+def _lower_ankle(state: np.ndarray, height: float, proportions: Proportions) -> float:
+    return float(joints_subset(state[None], height, _ANKLES, _ANKLE_NEED, proportions)[0, :, 2].min())
+
+
+def on_body(state: np.ndarray, height: float, now: Proportions, other: Proportions, low_now=None) -> np.ndarray:
     """``state`` (27,) of a body of ``now`` proportions moved onto one of ``other``: the
-    same angles, the root raised or lowered by what keeps the lower ankle's height."""
-    y = np.asarray(state, dtype=np.float64)[None]
-    low_now = joints_subset(y, height, _ANKLES, _ANKLE_NEED, now)[0, :, 2].min()
-    low_other = joints_subset(y, height, _ANKLES, _ANKLE_NEED, other)[0, :, 2].min()
-    out = y[0].copy()
-    out[2] += low_now - low_other
+    same angles, the root raised or lowered by what keeps the lower ankle's height
+    (``low_now``, when the caller has it)."""
+    out = np.array(state, dtype=np.float64)
+    low = _lower_ankle(out, height, now) if low_now is None else low_now
+    out[2] += low - _lower_ankle(out, height, other)
     return out
 
 
@@ -71,21 +83,15 @@ class ProportionFit:
     def done(self) -> bool:
         return self.seen >= self.frames
 
-    @staticmethod
-    def body(group: int, factor: float) -> Proportions:
-        return Proportions(legs=factor) if group == 0 else Proportions(arms=factor)
-
     def weigh(self, est: np.ndarray, height: float, now: Proportions, score, rng: np.random.Generator) -> None:
         """One frame: ``score(states, proportions, active) -> log-weights`` is the person's
         likelihood of this frame with a candidate's body; ``rng`` draws the nudges."""
         out = np.zeros_like(self.sums)
-        for g, (parts, dofs) in enumerate(_GROUPS.values()):
-            active = np.isin(np.array(PARTS), parts)
-            idx = np.array([DOF[d] for d in dofs])
+        low = _lower_ankle(np.asarray(est, dtype=np.float64), height, now)
+        for g, (active, idx, bodies) in enumerate(_GROUPS):
             nudges = rng.normal(0.0, 1.0, (TRIES, len(idx))) * SIGMA0[idx]
-            for c, factor in enumerate(FACTORS):
-                body = self.body(g, factor)
-                states = np.repeat(on_body(est, height, now, body)[None], TRIES + 1, axis=0)
+            for c, body in enumerate(bodies):
+                states = np.repeat(on_body(est, height, now, body, low)[None], TRIES + 1, axis=0)
                 states[1:, idx] = np.clip(states[1:, idx] + nudges, LIMITS_LO[idx], LIMITS_HI[idx])
                 out[g, c] = np.max(score(states, body, active))
         if np.all(np.isfinite(out)):   # a frame a candidate cannot score says nothing

@@ -10,13 +10,12 @@ format, other settings, missing or malformed arrays).
 
 Per person: the track id, stature (and the tops it was read from), limb proportions (and
 their fit's sums while it runs), frames posed, the last track position and smoothed
-velocity, the feet's vote for the facing, the state
-estimate, the random generator's state, the particle sets (SHBM-APF: one per model, with
-their sizes; APF: one) and, with DDM, the limb switch (which units are on, their last
-check and the scouts of the lost ones); with the behaviour method once it took over, its
-tracker (the blobs learnt, the particles with their velocities, clusters and VLMM
-states, the fits' count, mean and summed squared deviation) and the frames SHBM-APF
-still poses after a failure.
+velocity, the feet's vote for the facing, the state estimate, the random generator's
+state, the particle sets (SHBM-APF: one per model, with their sizes; APF: one) and, with
+DDM, the limb switch (which units are on, their last check and the scouts of the lost
+ones); with the behaviour method once it took over, its tracker (the blobs learnt, the
+particles with their velocities, clusters and VLMM states, the fits' count, mean and
+summed squared deviation) and the frames SHBM-APF still poses after a failure.
 """
 from __future__ import annotations
 
