@@ -104,6 +104,8 @@ class Pose(Worker):
         "marker_settle": 10,        # markers: frames a new track is followed facing either way
         "marker_floor": 0.1,        # markers: m, the lower ankle's floor prior; 0 = none (the thesis)
         "marker_polish": 3,         # markers: Gauss-Newton steps on the estimate's markers; 0 = none (the thesis)
+        "marker_polish_rounds": 2,  # markers: the polish's rounds, each picking the detections again
+        "marker_picks": "exclusive",  # markers: a detection is one landmark's pick per view; nearest (the thesis)
         "method": "shbm",           # shbm, apf, ddm, shbm+ddm, behaviour (Caillette's tracker, app.behaviour)
         "behaviour_start": 10,      # behaviour: a track's first frames posed by SHBM-APF, whose pose teaches the blobs
         "behaviour_particles": 500,  # behaviour: particles
@@ -178,6 +180,7 @@ class Pose(Worker):
         "seed": 0,
     }
     CHOICES = {"mode": ("markerless", "markers"), "marker_cost": ("thesis", "reprojection", "both_ways"),
+               "marker_picks": ("nearest", "exclusive"),
                "method": ("shbm", "apf", "ddm", "shbm+ddm", "behaviour"), "likelihood": ("partitioned", "global"),
                "behaviour_evaluation": ("model", "kl", "voxels"), "behaviour_recovery": ("shbm", "prototypes"),
                "ik": ("table", "straight"), "voxels": ("consensus", "tolerant", "all"),
@@ -197,7 +200,8 @@ class Pose(Worker):
               "behaviour_layers": (1, 12), "behaviour_refine": (0.0, 10.0), "behaviour_temperature": (0.0, 1e4),
               "marker_particles": (20, 20000), "marker_layers": (1, 20), "marker_alpha": (0.05, 0.95),
               "marker_rho": (1.0, 500.0), "marker_proposals": (0.0, 1.0), "marker_acquire": (1, 50),
-              "marker_settle": (0, 1000), "marker_floor": (0.0, 10.0), "marker_polish": (0, 50)}
+              "marker_settle": (0, 1000), "marker_floor": (0.0, 10.0), "marker_polish": (0, 50),
+              "marker_polish_rounds": (1, 10)}
 
     @classmethod
     def consumes(cls, spec) -> set[str]:
@@ -275,7 +279,8 @@ class Pose(Worker):
                               alpha=float(p["marker_alpha"]), rho=float(p["marker_rho"]), cost=str(p["marker_cost"]),
                               proposals=float(p["marker_proposals"]), acquire=int(p["marker_acquire"]),
                               settle=int(p["marker_settle"]), floor=float(p["marker_floor"]),
-                              polish=int(p["marker_polish"]), seed=int(p["seed"]), threads=int(p["threads"]))
+                              polish=int(p["marker_polish"]), polish_rounds=int(p["marker_polish_rounds"]),
+                              picks=str(p["marker_picks"]), seed=int(p["seed"]), threads=int(p["threads"]))
 
     def _setup_markers(self) -> None:
         """Marker mode: the run's cameras, a detector in the layout, the kernels compiled."""

@@ -389,7 +389,8 @@ def _marker(args, out: Path) -> dict:
         grid = {"dr": (1.0, 0.9, 0.8, 0.7, 0.6), "fp": (0, 20, 40, 60, 80, 100),
                 "sigma2": (0, 20, 40, 60, 80, 100),
                 "filters": tuple((L, n) for L in (1, 3, 5, 7) for n in (100, 300, 500, 700, 900))}
-    plain = {"proposals": 0.0} if args.marker_cost != "both_ways" else {}   # the thesis's APF: no proposals
+    # the thesis's APF: no proposals, each landmark the nearest detection (Eq. 6.5)
+    plain = {"proposals": 0.0, "picks": "nearest"} if args.marker_cost != "both_ways" else {}
     rows = bench_marker(scenes, frames=args.frames or 75, grid=grid, cost=args.marker_cost,
                         progress=lambda line: print(line, file=sys.stderr, flush=True), **plain)
     print(format_table(rows, scenes))

@@ -28,6 +28,14 @@ consistently from three views; a false detection rarely is) adds its distance to
 nearest landmark projection of its view, in units of ``rho`` (at most 1), and ``C``
 gains ``explain`` times their mean. On the simulated clips it was tuned on the thesis's
 likelihood lost the person within a second; this one follows (docs/benchmarks.md).
+
+``picks="exclusive"`` (ours; the thesis's Eq. 6.5 is ``"nearest"``): a limb whose own
+markers no camera sees (the far arm, a leg behind another person) is still rewarded for
+any detections that agree across views, so it drifted onto the nearest ones, the
+person's own head or shoulder markers among them, and stayed there. With exclusive picks
+a detection that several landmarks of one view pick is the pick of the landmark
+projecting nearest to it only; the others have no detection in that view (``s_m = 1``
+with fewer than two). A limb can no longer sit on a marker another landmark explains.
 """
 from __future__ import annotations
 
@@ -37,23 +45,28 @@ from numba import njit
 from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
 from app.pose.model import joints_subset, segments_needed
 
-__all__ = ["MarkerScorer", "COSTS", "marker_costs", "supported_detections", "triangulated_markers"]
+__all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "supported_detections", "triangulated_markers"]
 
 COSTS = ("thesis", "reprojection", "both_ways")
+PICKS = ("nearest", "exclusive")
 _ANKLES = np.array([11, 14], dtype=np.int64)   # l_ankle, r_ankle in JOINTS order
 ANKLE_HEIGHT = 0.039                          # of the stature: the ankle joint standing (app.pose.model)
 
 
 @njit(cache=True, nogil=True)
-def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explain, out):
+def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explain, exclusive, out):
     """``out[p]`` = C of Eq. 6.9 for the landmarks ``X`` (P, M, 3) of P particles, plus
-    ``explain`` times the mean unexplained share of the supported detections."""
+    ``explain`` times the mean unexplained share of the supported detections. With
+    ``exclusive`` a detection picked by several landmarks of one view stays the pick of
+    the landmark projecting nearest to it only (the others have no detection there)."""
     P, M = X.shape[0], X.shape[1]
     C = K.shape[0]
     tx = np.empty(C)
     ty = np.empty(C)
     views = np.empty(C, np.int64)
     proj = np.full((M, C, 2), 1e9)
+    pick = np.empty((M, C), np.int64)
+    pick_d2 = np.empty((M, C))
     n_supported = 0
     for q in range(det.shape[0]):
         if supported[q]:
@@ -61,9 +74,8 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
     for p in range(P):
         total = 0.0
         for m in range(M):
-            k = 0
-            reproj = 0.0
             for n in range(C):
+                pick[m, n] = -1
                 xc = R[n, 0, 0] * X[p, m, 0] + R[n, 0, 1] * X[p, m, 1] + R[n, 0, 2] * X[p, m, 2] + t[n, 0]
                 yc = R[n, 1, 0] * X[p, m, 0] + R[n, 1, 1] * X[p, m, 1] + R[n, 1, 2] * X[p, m, 2] + t[n, 1]
                 zc = R[n, 2, 0] * X[p, m, 0] + R[n, 2, 1] * X[p, m, 1] + R[n, 2, 2] * X[p, m, 2] + t[n, 2]
@@ -83,11 +95,29 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
                     if d2 <= best:
                         best = d2
                         bi = q
+                pick[m, n] = bi
+                pick_d2[m, n] = best
+        if exclusive:
+            for n in range(C):
+                for m in range(M - 1):
+                    if pick[m, n] < 0:
+                        continue
+                    for m2 in range(m + 1, M):
+                        if pick[m2, n] == pick[m, n]:
+                            if pick_d2[m2, n] < pick_d2[m, n]:
+                                pick[m, n] = -1
+                                break
+                            pick[m2, n] = -1
+        for m in range(M):
+            k = 0
+            reproj = 0.0
+            for n in range(C):
+                bi = pick[m, n]
                 if bi >= 0:
                     tx[k] = det[bi, 0]
                     ty[k] = det[bi, 1]
                     views[k] = n
-                    reproj += best
+                    reproj += pick_d2[m, n]
                     k += 1
             if k < 2:
                 total += 1.0
@@ -212,9 +242,12 @@ class MarkerScorer:
     ``log_weights`` of a :class:`~app.pose.filters.APF` scorer)."""
 
     def __init__(self, cameras, height: float, rho: float = 20.0, sigma: float = 1.0, cost: str = "thesis",
-                 support_px: float = 6.0, candidates: bool = False, explain: float = 1.0):
+                 support_px: float = 6.0, candidates: bool = False, explain: float = 1.0, picks: str = "nearest"):
         if cost not in COSTS:
             raise ValueError(f"marker cost must be one of {', '.join(COSTS)}, got {cost!r}")
+        if picks not in PICKS:
+            raise ValueError(f"marker picks must be one of {', '.join(PICKS)}, got {picks!r}")
+        self.exclusive = picks == "exclusive"   # a detection is the pick of one landmark per view (ours)
         self.cameras = list(cameras)
         self.height = float(height)
         self.rho, self.sigma, self.cost = float(rho), float(sigma), cost
@@ -254,7 +287,7 @@ class MarkerScorer:
         X = joints_subset(states, self.height, self.joints, self.need)
         out = np.empty(len(states))
         marker_costs(X, self.K, self.R, self.t, self.F, self.det, self.start, self.supported, self.rho,
-                     self.cost != "thesis", self.explain if self.cost == "both_ways" else 0.0, out)
+                     self.cost != "thesis", self.explain if self.cost == "both_ways" else 0.0, self.exclusive, out)
         self.evaluations += len(states)
         return out
 

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from app.files import json_entry, read_json_entry
-from app.markers.likelihood import COSTS
+from app.markers.likelihood import COSTS, PICKS
 from app.markers.tracking import MarkerTracker
 from app.pose.estimator import blob_top
 from app.pose.model import N_DOF, neutral_state, stature_from_top
@@ -64,16 +64,21 @@ class MarkerSettings:
     settle: int = 10            # frames a new track is followed facing either way (0: one frame's cost picks)
     floor: float = 0.1          # m: the lower ankle's prior (app.markers.likelihood); 0 = none (the thesis)
     polish: int = 3             # Gauss-Newton steps on the estimate's markers (app.markers.polish); 0: the thesis
+    polish_rounds: int = 2      # the polish's rounds, each picking the detections again
+    picks: str = "exclusive"    # a detection is one landmark's pick per view (ours); nearest: Eq. 6.5 (the thesis)
     threads: int = 1            # people posed in parallel (each their own filter and random stream: same poses)
     seed: int = 0
 
     def validate(self) -> None:
         if self.cost not in COSTS:
             raise ValueError(f"marker_cost {self.cost!r} must be one of {', '.join(COSTS)}")
+        if self.picks not in PICKS:
+            raise ValueError(f"marker_picks {self.picks!r} must be one of {', '.join(PICKS)}")
         if self.particles < 20 or self.layers < 1 or self.acquire < 1 or self.rho <= 0 or self.settle < 0 \
-                or self.floor < 0 or self.threads < 1 or not 0 < self.alpha < 1 or self.polish < 0:
+                or self.floor < 0 or self.threads < 1 or not 0 < self.alpha < 1 or self.polish < 0 \
+                or self.polish_rounds < 1:
             raise ValueError("marker particles >= 20, layers >= 1, acquire >= 1, rho > 0, settle >= 0, floor >= 0, "
-                             "0 < alpha < 1, polish >= 0")
+                             "0 < alpha < 1, polish >= 0, polish_rounds >= 1")
 
 
 def person_stature(centres: np.ndarray, voxel_size: float) -> float | None:
@@ -105,7 +110,8 @@ class MarkerPeople:
         s = self.s
         return MarkerTracker(self.cameras, height, particles=s.particles, layers=s.layers, alpha=s.alpha, rho=s.rho,
                              cost=s.cost, seed=s.seed * 1_000_003 + int(track), proposals=s.proposals,
-                             support_px=s.support_px, explain=s.explain, floor=s.floor, polish=s.polish)
+                             support_px=s.support_px, explain=s.explain, floor=s.floor, polish=s.polish,
+                             picks=s.picks, polish_rounds=s.polish_rounds)
 
     @staticmethod
     def _cost(tracker: MarkerTracker) -> float:

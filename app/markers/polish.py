@@ -5,13 +5,16 @@ Three layers of 700 particles (the thesis's setting, §6.6.1) place a 27-DoF bod
 centimetres: the particles are spread over the whole body, and no one of them lies on
 every marker at once. What they leave is a local fit: each landmark of the estimate has,
 in each view, the detection nearest to its projection within ``rho`` (Eq. 6.5, the
-likelihood's own pick), and a few Gauss-Newton steps on the reprojection error of those
-pairs, with a robust (soft L1) weight per pair so that a wrong pick pulls little, settle
-the body on them. The Jacobian is taken by finite differences of the whole state at once
-(:func:`app.pose.model.joints_subset` of 28 states), so a step costs about one particle
-layer's 28 evaluations, not a layer's 700. The polished state is kept only where the
-filter's own likelihood (Eq. 6.10 with our terms and priors) rates it at least as well
-as the estimate.
+likelihood's own pick, exclusive where the scorer's picks are), and a few Gauss-Newton
+steps on the reprojection error of those pairs, with a robust (soft L1) weight per pair
+so that a wrong pick pulls little, settle the body on them. Then the landmarks pick
+their detections again from where the steps left the body, and the next round of steps
+follows (``rounds``: a landmark a centimetre or two nearer its marker may find it within
+``rho`` where the filter's estimate did not). The Jacobian is taken by finite
+differences of the whole state at once (:func:`app.pose.model.joints_subset` of 28
+states), so a step costs about one particle layer's 28 evaluations, not a layer's 700.
+The polished state is kept only where the filter's own likelihood (Eq. 6.10 with our
+terms and priors) rates it at least as well as the estimate.
 
 Pure: states, detections and cameras in, a state out; no bus.
 """
@@ -42,6 +45,10 @@ def _pairs(X, scorer):
         d[~np.isfinite(d)] = np.inf
         q = np.argmin(d, axis=1)
         ok = d[np.arange(len(X)), q] < scorer.rho
+        if scorer.exclusive:   # a detection stays the pick of the landmark nearest to it only
+            nearest = np.full(len(det), np.inf)
+            np.minimum.at(nearest, q[ok], d[np.arange(len(X)), q][ok])
+            ok &= d[np.arange(len(X)), q] <= nearest[q]
         if ok.any():
             out.append((n, np.nonzero(ok)[0], det[q[ok]]))
     return out
@@ -56,21 +63,33 @@ def _project(X, scorer, n):
     return np.stack([K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]], axis=-1)
 
 
-def polish(state: np.ndarray, scorer, iterations: int = 5, scale: float = 3.0, min_pairs: int = 12) -> np.ndarray:
-    """``state`` (27,) after up to ``iterations`` robust Gauss-Newton steps on the
-    reprojection error of its landmarks' detections (soft L1 of ``scale`` px), or
+def polish(state: np.ndarray, scorer, iterations: int = 5, scale: float = 3.0, min_pairs: int = 12,
+           rounds: int = 1) -> np.ndarray:
+    """``state`` (27,) after ``rounds`` of up to ``iterations`` robust Gauss-Newton steps
+    each on the reprojection error of its landmarks' detections (soft L1 of ``scale`` px;
+    each round picks the detections again from where the last one left the body), or
     ``state`` itself where that is not rated better by ``scorer`` (a
     :class:`~app.markers.likelihood.MarkerScorer` with this frame's detections)."""
     state = np.asarray(state, dtype=np.float64)
     if iterations <= 0:
         return state
     height = scorer.height
-    pairs = _pairs(joints_subset(state[None], height, _ALL, _NEED)[0], scorer)
-    if sum(len(m) for _, m, _ in pairs) < min_pairs:
-        return state
     lo, hi = LIMITS_LO + 1e-9, LIMITS_HI - 1e-9
     x = state.copy()
     probes = np.empty((N_DOF + 1, N_DOF))
+    for r in range(max(int(rounds), 1)):
+        pairs = _pairs(joints_subset(x[None], height, _ALL, _NEED)[0], scorer)
+        if sum(len(m) for _, m, _ in pairs) < min_pairs:
+            if r == 0:
+                return state
+            break
+        x = _steps(x, pairs, scorer, height, iterations, scale, probes, lo, hi)
+    before, after = scorer.log_weights(np.stack([state, x]))
+    return x if after >= before else state
+
+
+def _steps(x, pairs, scorer, height, iterations, scale, probes, lo, hi):
+    """``x`` after up to ``iterations`` damped Gauss-Newton steps on ``pairs``."""
     for _ in range(iterations):
         probes[:] = x
         probes[1:] += EPS * np.eye(N_DOF)
@@ -89,5 +108,4 @@ def polish(state: np.ndarray, scorer, iterations: int = 5, scale: float = 3.0, m
         x = np.clip(x + step, lo, hi)
         if float(np.abs(step).max()) < 1e-4:
             break
-    before, after = scorer.log_weights(np.stack([state, x]))
-    return x if after >= before else state
+    return x
