@@ -44,11 +44,12 @@ def _pairs(X, scorer):
         d = np.linalg.norm(uv[:, None, :] - det[None], axis=2)
         d[~np.isfinite(d)] = np.inf
         q = np.argmin(d, axis=1)
-        ok = d[np.arange(len(X)), q] < scorer.rho
+        dq = d[np.arange(len(X)), q]
+        ok = dq < scorer.rho
         if scorer.exclusive:   # a detection stays the pick of the landmark nearest to it only
             nearest = np.full(len(det), np.inf)
-            np.minimum.at(nearest, q[ok], d[np.arange(len(X)), q][ok])
-            ok &= d[np.arange(len(X)), q] <= nearest[q]
+            np.minimum.at(nearest, q[ok], dq[ok])
+            ok &= dq <= nearest[q]
         if ok.any():
             out.append((n, np.nonzero(ok)[0], det[q[ok]]))
     return out
