@@ -45,12 +45,30 @@ from numba import njit
 from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
 from app.pose.model import joints_subset, segments_needed
 
-__all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "supported_detections", "triangulated_markers"]
+__all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "exclusive_picks", "supported_detections", "triangulated_markers"]
 
 COSTS = ("thesis", "reprojection", "both_ways")
 PICKS = ("nearest", "exclusive")
 _ANKLES = np.array([11, 14], dtype=np.int64)   # l_ankle, r_ankle in JOINTS order
 ANKLE_HEIGHT = 0.039                          # of the stature: the ankle joint standing (app.pose.model)
+
+
+@njit(cache=True, nogil=True)
+def exclusive_picks(pick, pick_d2):
+    """Exclusive picks (ours): where several landmarks of one view picked one detection
+    (``pick`` (M, C) detection indices, -1 none; ``pick_d2`` their squared distances), it
+    stays the pick of the nearest of them (the first at a tie); the others' become -1."""
+    M, C = pick.shape
+    for n in range(C):
+        for m in range(M - 1):
+            if pick[m, n] < 0:
+                continue
+            for m2 in range(m + 1, M):
+                if pick[m2, n] == pick[m, n]:
+                    if pick_d2[m2, n] < pick_d2[m, n]:
+                        pick[m, n] = -1
+                        break
+                    pick[m2, n] = -1
 
 
 @njit(cache=True, nogil=True)
@@ -98,16 +116,7 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
                 pick[m, n] = bi
                 pick_d2[m, n] = best
         if exclusive:
-            for n in range(C):
-                for m in range(M - 1):
-                    if pick[m, n] < 0:
-                        continue
-                    for m2 in range(m + 1, M):
-                        if pick[m2, n] == pick[m, n]:
-                            if pick_d2[m2, n] < pick_d2[m, n]:
-                                pick[m, n] = -1
-                                break
-                            pick[m2, n] = -1
+            exclusive_picks(pick, pick_d2)
         for m in range(M):
             k = 0
             reproj = 0.0

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.markers.likelihood import exclusive_picks
 from app.pose.model import LIMITS_HI, LIMITS_LO, N_DOF, joints_subset, segments_needed
 
 __all__ = ["polish"]
@@ -34,9 +35,12 @@ _NEED = segments_needed(_ALL)
 
 def _pairs(X, scorer):
     """Per view, the landmarks with a detection within ``rho`` of their projection and
-    that detection: ``[(view, landmarks (k,), detections (k, 2))]``."""
-    out = []
-    for n in range(len(scorer.cameras)):
+    that detection: ``[(view, landmarks (k,), detections (k, 2))]``; with the scorer's
+    exclusive picks, a detection is the pick of one landmark (:func:`exclusive_picks`)."""
+    C = len(scorer.cameras)
+    pick = np.full((len(X), C), -1, np.int64)
+    pick_d2 = np.zeros((len(X), C))
+    for n in range(C):
         det = scorer.det[scorer.start[n]:scorer.start[n + 1]]
         if not len(det):
             continue
@@ -46,12 +50,15 @@ def _pairs(X, scorer):
         q = np.argmin(d, axis=1)
         dq = d[np.arange(len(X)), q]
         ok = dq < scorer.rho
-        if scorer.exclusive:   # a detection stays the pick of the landmark nearest to it only
-            nearest = np.full(len(det), np.inf)
-            np.minimum.at(nearest, q[ok], dq[ok])
-            ok &= dq <= nearest[q]
-        if ok.any():
-            out.append((n, np.nonzero(ok)[0], det[q[ok]]))
+        pick[ok, n] = scorer.start[n] + q[ok]
+        pick_d2[:, n] = dq * dq
+    if scorer.exclusive:
+        exclusive_picks(pick, pick_d2)
+    out = []
+    for n in range(C):
+        m = np.flatnonzero(pick[:, n] >= 0)
+        if len(m):
+            out.append((n, m, scorer.det[pick[m, n]]))
     return out
 
 
