@@ -557,13 +557,25 @@ class Worker(Restarts):
                                     final=True, figures=msg.figures))
             if msg.worker not in self._wait_for:
                 return   # another stage's end: not this worker's input
-            with self._lock:
-                self._upstream_eos[msg.worker] = (msg, time.monotonic())
+            self._heard_end(msg, time.monotonic())
             self.inbox.wake()
         elif isinstance(msg, Stats):
             self.on_stats(msg)
         else:
             self.reject(key, f"unexpected {type(msg).__name__}")
+
+    def _heard_end(self, msg: EndOfStream, now: float) -> None:
+        """An upstream worker's end of stream arrived at ``now``. The arrival kept is the
+        one that confirms it (:meth:`_upstream_ended`): an end heard around its sender's
+        leaving stays, so the launcher's repeats of it, heard long after while this worker
+        was busy with its last frames, cannot make it look forged (a run used to wait for
+        it for good)."""
+        with self._lock:
+            kept = self._upstream_eos.get(msg.worker)
+            died = self._died.get(msg.worker) if msg.worker not in self.alive else None
+            if kept is not None and died is not None and abs(died - kept[1]) <= EOS_CONFIRM_S:
+                now = kept[1]
+            self._upstream_eos[msg.worker] = (msg, now)
 
     def _upstream_ended(self, name: str, now: float) -> bool:
         """``name`` has ended: it sent its end of stream and left the bus around then."""
