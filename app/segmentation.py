@@ -263,6 +263,7 @@ class CameraSegmenter:
         self._close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.close_px,) * 2) if params.close_px else None
         self.trained = False
         self.frames = 0
+        self._learned = 0   # frames MOG2 learnt from (the background images too)
         self.small: np.ndarray | None = None   # the last frame at the mask's size
         self.reference: np.ndarray | None = None   # MOG2's background image (shadow test, second chance, exposure)
         self.gain = 1.0   # the last frame's brightness against the background's (``exposure``)
@@ -274,34 +275,40 @@ class CameraSegmenter:
         """Train the model on empty-room images (running mean over them)."""
         for i, img in enumerate(images):
             self.model.apply(shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
+            self._learned += 1
         self.trained = True
 
-    def _match_exposure(self) -> None:
+    def _match_exposure(self, learn: bool = True) -> None:
         """Scale ``small`` by its gain against ``reference`` over that gain's running mean
         (``exposure``: the flicker goes, a steady offset stays; :func:`exposure_gain`)."""
         self.gain = exposure_gain(self.small, self.reference)
-        self.usual_gain = self.gain if self.usual_gain is None else \
-            self.usual_gain + (self.gain - self.usual_gain) / self.params.exposure
+        if learn or self.usual_gain is None:
+            self.usual_gain = self.gain if self.usual_gain is None else \
+                self.usual_gain + (self.gain - self.usual_gain) / self.params.exposure
         flicker = self.gain / self.usual_gain
         if abs(flicker - 1.0) > 0.002:
             self.small = cv2.convertScaleAbs(self.small, alpha=1.0 / flicker)
 
-    def apply(self, image: np.ndarray, prescaled: int = 1) -> np.ndarray:
-        """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting.
+    def apply(self, image: np.ndarray, prescaled: int = 1, learn: bool = True) -> np.ndarray:
+        """Foreground mask (H/scale, W/scale) bool of one frame; the model keeps adapting
+        (``learn`` False: it stays as it is, for a frame it has taken already).
         ``prescaled``: the image is already 1/prescaled of the camera's size (it divides scale)."""
-        self.frames += 1
-        fast = not self.trained and self.frames <= self.params.bootstrap
-        rate = -1.0 if fast else self.params.learning_rate
         p = self.params
+        self.frames += learn
+        self._learned += learn
+        fast = learn and not self.trained and self.frames <= p.bootstrap
+        # MOG2's automatic rate, 1 / min(2 n, history), over the frames it learnt from only
+        # (its own n counts every call, a frame taken without learning too)
+        rate = 1.0 / min(2 * self._learned, p.history) if fast else p.learning_rate if learn else 0.0
         self.small = shrink(image, p.scale // prescaled)
         if p.exposure > 0 and not fast:
             if self.reference is None:
                 self.reference = self.model.getBackgroundImage()   # None until the model has seen a frame
             if self.reference is not None:
-                self._match_exposure()
+                self._match_exposure(learn)
         raw = self.model.apply(self.small, learningRate=rate)
         if p.shadow_floor > 0 or p.second_chance > 0 or p.exposure > 0:
-            if self.reference is None or self.frames % 10 == 0 or fast:
+            if self.reference is None or (learn and (self.frames % 10 == 0 or fast)):
                 self.reference = self.model.getBackgroundImage()
         if p.shadow_floor > 0 or p.second_chance > 0:
             fg = np.empty(raw.shape, dtype=np.uint8)

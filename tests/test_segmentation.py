@@ -45,6 +45,23 @@ def test_median_background_when_the_recording_has_none(tmp_path):
     assert _mean_iou(rec, lambda cam: estimate_background(rec.sample(cam, 25))) > 0.85
 
 
+@pytest.mark.parametrize("background", [True, False])
+def test_a_frame_taken_without_learning_leaves_the_model_as_it_was(tmp_path, background):
+    """``apply(..., learn=False)`` (a frame sent again after a restart, which the model
+    took already) gives a mask and changes nothing: the masks after it are those of a
+    model that never saw it, to the pixel (bootstrap without a background image too;
+    the dark-shadow and exposure steps on)."""
+    rec = Recording(write_tiny_recording(tmp_path / "r", frames=40, background=background))
+    images = [im["cam0"] for _, im in rec.frames(["cam0"])]
+    params = SegmentationParams(scale=2, exposure=50)
+    a, b = (CameraSegmenter(params, rec.background("cam0")) for _ in range(2))
+    for i, image in enumerate(images):
+        if i in (12, 30):
+            extra = b.apply(images[i - 3], learn=False)
+            assert not background or _iou(extra, _box_mask(i - 3, 40, 160, 120, 2)[:extra.shape[0], :extra.shape[1]]) > 0.5
+        assert np.array_equal(a.apply(image), b.apply(image)), i
+
+
 # -- the masks against the simulator's true silhouettes (issue 8) -------------------------
 
 def test_fill_holes_fills_small_enclosed_holes_only():

@@ -10,12 +10,20 @@ through most of the recording, and so are in that median, are found with the oth
 cameras' views of the room and painted out of it (``still_people``,
 :mod:`app.background_views`); live cameras learn it from the stream.
 
+A restarted worker on a recording first runs its cameras' models through the frames its
+earlier incarnation took (read again from the recording, reduced as the grabber sent
+them; at most :data:`REBUILD_IMAGES`) before it takes its first frame, so its masks, and
+the results after them, are those of a run that never stopped (OpenCV's MOG2 has no way
+to save its model). Live, the models start afresh.
+
 ``markers``: a colour markers' chroma model (``smartroom markers learn``; ``recording``:
 the recording's ``markers.json``): the worker also detects the markers in each frame and
 publishes them (:class:`~app.messages.Markers`, as a markers worker does, in this
 process; the grabber then sends full-size frames).
 """
 from __future__ import annotations
+
+import time
 
 from app.messages import Frame, Mask
 from app.recording import Recording
@@ -24,6 +32,11 @@ from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmen
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
+#: a restarted worker on a recording runs its models through at most this many of the
+#: frames before (over its cameras together: 20 s of video of 4 cameras at 25 fps, well
+#: under a minute's work here, within the grabber's ``stall_timeout_s``); farther into a
+#: recording, the last of them only (the masks then differ slightly from an undisturbed run)
+REBUILD_IMAGES = 2000
 
 
 def scales(spec, layout, calibration) -> tuple[int, int]:
@@ -121,6 +134,9 @@ class Segmentation(Worker):
         self.seg_params = SegmentationParams.from_params({**self.params, "scale": self.scale})
         self.segmenters: dict[str, CameraSegmenter] = {}
         self.backgrounds = None
+        self.rebuilt: dict[str, int] = {}   # camera -> frames its model was run through again (restarted)
+        self.model_next: dict[str, int] = {}   # a recording: camera -> the next frame its model takes
+        self._first = self._stream_start()[0] if self.recording is not None else 0
         # build the models before the first frame arrives (live: a model that learns from the
         # stream), and run the kernels once, so a live run's first frames are not lost to it
         cams = self.cameras() or (self.recording.cameras if self.recording else self.known_cameras) or []
@@ -148,6 +164,42 @@ class Segmentation(Worker):
             seg = self.segmenters[cam] = camera_segmenter(self.seg_params, self._background(cam), self.calibration, cam)
         return seg
 
+    def _stream_start(self) -> tuple[int, bool]:
+        """(the stream's first frame, whether the grabber skips undecodable frames)."""
+        from workers import producers_of
+
+        grabbers = [self.layout.worker(n).params for n in producers_of(self.layout, "frame")]
+        return (min((int(p.get("start", 0)) for p in grabbers), default=0),
+                any(p.get("skip_bad_frames", False) for p in grabbers))
+
+    def _catch_up_model(self, cam: str, upto: int, scale: int) -> None:
+        """Run ``cam``'s model through the recording's frames it lacks before ``upto`` (at
+        most the last :data:`REBUILD_IMAGES` over the worker's cameras), as the grabber sent
+        them (reduced by ``scale``; a frame it could not decode left out): after a restart,
+        the model the earlier incarnation had. (Only this camera's: another camera's frames
+        may still be on their way, and a model takes each frame once, in order.)"""
+        first, skip_bad = self._stream_start()
+        start = max(first, self.model_next.get(cam, first))
+        cut = max(start, upto - REBUILD_IMAGES // max(1, len(self.segmenters)))
+        t0, phase = time.monotonic(), self._phase
+        self._phase = "rebuilding background models"   # busy, not hung (the heartbeat)
+        try:
+            seg = self.segmenters[cam]
+            for _, images in self.recording.frames([cam], cut, upto, skip_bad=skip_bad):
+                seg.apply(shrink(images[cam], scale) if scale > 1 else images[cam], prescaled=scale)
+                self._turned = time.monotonic()
+        finally:
+            self._phase = phase
+        self.model_next[cam] = upto
+        self.rebuilt[cam] = self.rebuilt.get(cam, 0) + upto - cut
+        whole = "as if never stopped" if cut == start else \
+            f"from frame {cut} only: its masks may differ slightly from an undisturbed run"
+        self.log.info("camera %s: background model run through frames %d-%d of the recording (%.1f s): %s",
+                      cam, cut, upto - 1, time.monotonic() - t0, whole)
+
+    def extra_figures(self) -> dict:
+        return {"models_rebuilt_frames": dict(self.rebuilt)} if self.rebuilt else {}
+
     def admit(self, key: str, msg: Frame) -> str | None:
         """Only the cameras of the calibration (and of this worker, when it has a list)."""
         mine = self.cameras()
@@ -160,7 +212,14 @@ class Segmentation(Worker):
 
     def handle(self, key: str, msg: Frame) -> None:
         seg = self._segmenter(msg.camera)
-        mask = seg.apply(msg.image, prescaled=msg.scale)
+        learn = True
+        if self.lossless and self.recording is not None:   # a recording: each frame taken once, in order
+            if self.model_next.get(msg.camera, self._first) < msg.frame:   # restarted: the frames before
+                self._catch_up_model(msg.camera, msg.frame, msg.scale)
+            learn = self.model_next.get(msg.camera, self._first) <= msg.frame   # else taken already (sent again)
+            if learn:
+                self.model_next[msg.camera] = msg.frame + 1
+        mask = seg.apply(msg.image, prescaled=msg.scale, learn=learn)
         scale = self.colour_scale
         colour = None
         if scale == self.scale:
