@@ -113,6 +113,10 @@ def test_killed_tracking_and_pose_workers_carry_on_as_if_never_stopped(meeting, 
     assert s["complete"] is True and s["stages"]["tracking"]["restarts"] == 1 and s["stages"]["pose"]["restarts"] == 1
     assert "tracker restored at frame" in err and "pose estimator restored at frame" in err, err[-2000:]
     assert_results_as_undisturbed(out, calm)
+    # the frames posed with the silhouettes, counted over both incarnations (the
+    # snapshot carries the count; it used to be the last incarnation's only)
+    assert s["workers"]["pose"]["silhouette_frames"] == stats_of(calm)["workers"]["pose"]["silhouette_frames"] \
+        == [150, 150]
     tracks = [json.loads(line) for line in open(out / "tracks.jsonl")]
     assert len(tracks) == 150 and {t["id"] for f in tracks[75:] for t in f["tracks"]} >= {1, 2}
 

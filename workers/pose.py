@@ -82,6 +82,7 @@ from workers.base import RECENT_FRAMES, Worker
 from workers.restarts import REPLAY_FRAMES
 
 KEEP_FRAMES = 8
+CUE_FRAMES = "cue_frames"   # the state arrays' counts of frames posed with markers, keypoints, silhouettes
 
 
 class Pose(Worker):
@@ -358,6 +359,7 @@ class Pose(Worker):
             return
         if self.marker_people is None:
             self.estimator = est
+        self._restore_cue_frames(arrays)
         self.grid, self.done = grid, frame
         self.at = self.saved_at = (mine["epoch"], frame, mine["t"], grid)
         self.catching = True
@@ -374,9 +376,21 @@ class Pose(Worker):
         self.saved_at = self.at
         if people is not None:
             from app.markers.people import state_arrays
-            return self.stamp_arrays(state_arrays(people), epoch, frame, t, grid=grid)
-        from app.pose.snapshot import estimator_state
-        return self.stamp_arrays(estimator_state(self.estimator), epoch, frame, t, grid=grid)
+            arrays = state_arrays(people)
+        else:
+            from app.pose.snapshot import estimator_state
+            arrays = estimator_state(self.estimator)
+        arrays[CUE_FRAMES] = np.array(self.marker_frames + self.keypoint_frames + self.silhouette_frames, np.int64)
+        return self.stamp_arrays(arrays, epoch, frame, t, grid=grid)
+
+    def _restore_cue_frames(self, arrays) -> None:
+        """The counts of frames posed with each cue up to the snapshot's frame (the
+        frames caught up on after it add theirs), so the figures cover every incarnation."""
+        counts = arrays.get(CUE_FRAMES) if hasattr(arrays, "get") else None
+        if counts is None or np.shape(counts) != (6,) or not np.issubdtype(np.asarray(counts).dtype, np.integer):
+            return
+        c = [max(0, int(v)) for v in counts]
+        self.marker_frames, self.keypoint_frames, self.silhouette_frames = c[0:2], c[2:4], c[4:6]
 
     # -- frames ------------------------------------------------------------------------
     def catch_up(self, key: str, msg) -> None:
