@@ -136,7 +136,7 @@ class Segmentation(Worker):
         self.backgrounds = None
         self.rebuilt: dict[str, int] = {}   # camera -> frames its model was run through again (restarted)
         self.model_next: dict[str, int] = {}   # a recording: camera -> the next frame its model takes
-        self._first = self._stream_start()[0] if self.recording is not None else 0
+        self._starts: dict[str, tuple[int, bool]] = {}
         # build the models before the first frame arrives (live: a model that learns from the
         # stream), and run the kernels once, so a live run's first frames are not lost to it
         cams = self.cameras() or (self.recording.cameras if self.recording else self.known_cameras) or []
@@ -164,13 +164,18 @@ class Segmentation(Worker):
             seg = self.segmenters[cam] = camera_segmenter(self.seg_params, self._background(cam), self.calibration, cam)
         return seg
 
-    def _stream_start(self) -> tuple[int, bool]:
-        """(the stream's first frame, whether the grabber skips undecodable frames)."""
-        from workers import producers_of
+    def _stream_start(self, cam: str) -> tuple[int, bool]:
+        """(the first frame of ``cam``'s stream, whether its grabber skips undecodable
+        frames) on a recording."""
+        got = self._starts.get(cam)
+        if got is None:
+            from workers import producers_of
 
-        grabbers = [self.layout.worker(n).params for n in producers_of(self.layout, "frame")]
-        return (min((int(p.get("start", 0)) for p in grabbers), default=0),
-                any(p.get("skip_bad_frames", False) for p in grabbers))
+            grabbers = [p for p in (self.layout.worker(n).params for n in producers_of(self.layout, "frame"))
+                        if p.get("cameras", "all") in (None, "all") or cam in p["cameras"]]
+            got = self._starts[cam] = (min((int(p.get("start", 0)) for p in grabbers), default=0),
+                                       any(p.get("skip_bad_frames", False) for p in grabbers))
+        return got
 
     def _catch_up_model(self, cam: str, upto: int, scale: int) -> None:
         """Run ``cam``'s model through the recording's frames it lacks before ``upto`` (at
@@ -178,20 +183,24 @@ class Segmentation(Worker):
         them (reduced by ``scale``; a frame it could not decode left out): after a restart,
         the model the earlier incarnation had. (Only this camera's: another camera's frames
         may still be on their way, and a model takes each frame once, in order.)"""
-        first, skip_bad = self._stream_start()
+        first, skip_bad = self._stream_start(cam)
         start = max(first, self.model_next.get(cam, first))
         cut = max(start, upto - REBUILD_IMAGES // max(1, len(self.segmenters)))
         t0, phase = time.monotonic(), self._phase
         self._phase = "rebuilding background models"   # busy, not hung (the heartbeat)
+        taken = 0
         try:
             seg = self.segmenters[cam]
             for _, images in self.recording.frames([cam], cut, upto, skip_bad=skip_bad):
                 seg.apply(shrink(images[cam], scale) if scale > 1 else images[cam], prescaled=scale)
                 self._turned = time.monotonic()
+                taken += 1
         finally:
             self._phase = phase
         self.model_next[cam] = upto
-        self.rebuilt[cam] = self.rebuilt.get(cam, 0) + upto - cut
+        if not taken:   # frames the grabber could not decode either
+            return
+        self.rebuilt[cam] = self.rebuilt.get(cam, 0) + taken
         whole = "as if never stopped" if cut == start else \
             f"from frame {cut} only: its masks may differ slightly from an undisturbed run"
         self.log.info("camera %s: background model run through frames %d-%d of the recording (%.1f s): %s",
@@ -214,9 +223,10 @@ class Segmentation(Worker):
         seg = self._segmenter(msg.camera)
         learn = True
         if self.lossless and self.recording is not None:   # a recording: each frame taken once, in order
-            if self.model_next.get(msg.camera, self._first) < msg.frame:   # restarted: the frames before
+            expected = self.model_next.get(msg.camera, self._stream_start(msg.camera)[0])
+            if expected < msg.frame:   # restarted: the frames before
                 self._catch_up_model(msg.camera, msg.frame, msg.scale)
-            learn = self.model_next.get(msg.camera, self._first) <= msg.frame   # else taken already (sent again)
+            learn = expected <= msg.frame   # else taken already (sent again)
             if learn:
                 self.model_next[msg.camera] = msg.frame + 1
         mask = seg.apply(msg.image, prescaled=msg.scale, learn=learn)
