@@ -12,7 +12,7 @@ cameras' views of the room and painted out of it (``still_people``,
 
 A restarted worker on a recording first runs its cameras' models through the frames its
 earlier incarnation took (read again from the recording, reduced as the grabber sent
-them; at most :data:`REBUILD_IMAGES`) before it takes its first frame, so its masks, and
+them; at most ``rebuild_images``) before it takes its first frame, so its masks, and
 the results after them, are those of a run that never stopped (OpenCV's MOG2 has no way
 to save its model). Live, the models start afresh.
 
@@ -32,11 +32,6 @@ from app.segmentation import (CameraSegmenter, SegmentationParams, camera_segmen
 from workers.base import Worker
 
 DEFAULT_SCALE = 2
-#: a restarted worker on a recording runs its models through at most this many of the
-#: frames before (over its cameras together: 20 s of video of 4 cameras at 25 fps, well
-#: under a minute's work here, within the grabber's ``stall_timeout_s``); farther into a
-#: recording, the last of them only (the masks then differ slightly from an undisturbed run)
-REBUILD_IMAGES = 2000
 
 
 def scales(spec, layout, calibration) -> tuple[int, int]:
@@ -106,12 +101,16 @@ class Segmentation(Worker):
         "median_frames": 25,         # frames for the median background when there is no image
         "still_people": True,        # ... and people standing still in it found with the other cameras, painted out
         "markers": "",               # the markers' chroma model: also detect them (recording: its markers.json)
+        "rebuild_images": 2000,      # restarted on a recording: the models take again at most this many of the
+                                     # images before, over the cameras (20 s of 4 cameras at 25 fps, ~7 s of work
+                                     # here, well within the grabber's stall_timeout_s); farther in, the last of them
+                                     # only, and the masks differ slightly from an undisturbed run (0: start afresh)
     }
     RANGES = {"scale": (0, 16), "history": (1, 100000), "var_threshold": (0.1, 10000.0),
               "shadow_threshold": (0.0, 1.0), "learning_rate": (-1.0, 1.0), "bootstrap": (0, 100000),
               "open_px": (0, 99), "close_px": (0, 99), "colour_scale": (-1, 16), "median_frames": (1, 1000),
               "shadow_floor": (0.0, 1.0), "shadow_residual": (0.0, 255.0), "fill_holes": (0, 10 ** 7),
-              "second_chance": (0.0, 255.0), "exposure": (0, 100000)}
+              "second_chance": (0.0, 255.0), "exposure": (0, 100000), "rebuild_images": (0, 10 ** 7)}
 
     @classmethod
     def produces(cls, spec) -> set[str]:
@@ -179,13 +178,13 @@ class Segmentation(Worker):
 
     def _catch_up_model(self, cam: str, upto: int, scale: int) -> None:
         """Run ``cam``'s model through the recording's frames it lacks before ``upto`` (at
-        most the last :data:`REBUILD_IMAGES` over the worker's cameras), as the grabber sent
+        most the last ``rebuild_images`` over the worker's cameras), as the grabber sent
         them (reduced by ``scale``; a frame it could not decode left out): after a restart,
         the model the earlier incarnation had. (Only this camera's: another camera's frames
         may still be on their way, and a model takes each frame once, in order.)"""
         first, skip_bad = self._stream_start(cam)
         start = max(first, self.model_next.get(cam, first))
-        cut = max(start, upto - REBUILD_IMAGES // max(1, len(self.segmenters)))
+        cut = max(start, upto - int(self.params["rebuild_images"]) // max(1, len(self.segmenters)))
         t0, phase = time.monotonic(), self._phase
         self._phase = "rebuilding background models"   # busy, not hung (the heartbeat)
         taken = 0
@@ -198,13 +197,14 @@ class Segmentation(Worker):
         finally:
             self._phase = phase
         self.model_next[cam] = upto
-        if not taken:   # frames the grabber could not decode either
-            return
-        self.rebuilt[cam] = self.rebuilt.get(cam, 0) + taken
-        whole = "as if never stopped" if cut == start else \
-            f"from frame {cut} only: its masks may differ slightly from an undisturbed run"
-        self.log.info("camera %s: background model run through frames %d-%d of the recording (%.1f s): %s",
-                      cam, cut, upto - 1, time.monotonic() - t0, whole)
+        if taken:   # (none: frames the grabber could not decode either)
+            self.rebuilt[cam] = self.rebuilt.get(cam, 0) + taken
+        if cut > start:
+            self.log.warning("camera %s: the background model took %d of the frames %d-%d again (rebuild_images): "
+                             "its masks may differ slightly from an undisturbed run", cam, taken, start, upto - 1)
+        elif taken:
+            self.log.info("camera %s: background model run through frames %d-%d of the recording again (%.1f s): "
+                          "as if never stopped", cam, cut, upto - 1, time.monotonic() - t0)
 
     def extra_figures(self) -> dict:
         return {"models_rebuilt_frames": dict(self.rebuilt)} if self.rebuilt else {}
