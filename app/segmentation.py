@@ -262,8 +262,7 @@ class CameraSegmenter:
         self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.open_px,) * 2) if params.open_px else None
         self._close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.close_px,) * 2) if params.close_px else None
         self.trained = False
-        self.frames = 0
-        self._learned = 0   # frames MOG2 learnt from (the background images too)
+        self.frames = 0   # frames the model learnt from (the background images aside)
         self.small: np.ndarray | None = None   # the last frame at the mask's size
         self.reference: np.ndarray | None = None   # MOG2's background image (shadow test, second chance, exposure)
         self.gain = 1.0   # the last frame's brightness against the background's (``exposure``)
@@ -275,7 +274,6 @@ class CameraSegmenter:
         """Train the model on empty-room images (running mean over them)."""
         for i, img in enumerate(images):
             self.model.apply(shrink(img, self.params.scale), learningRate=1.0 / (i + 1))
-            self._learned += 1
         self.trained = True
 
     def _match_exposure(self, learn: bool = True) -> None:
@@ -295,11 +293,11 @@ class CameraSegmenter:
         ``prescaled``: the image is already 1/prescaled of the camera's size (it divides scale)."""
         p = self.params
         self.frames += learn
-        self._learned += learn
         fast = learn and not self.trained and self.frames <= p.bootstrap
         # MOG2's automatic rate, 1 / min(2 n, history), over the frames it learnt from only
-        # (its own n counts every call, a frame taken without learning too)
-        rate = 1.0 / min(2 * self._learned, p.history) if fast else p.learning_rate if learn else 0.0
+        # (its own n counts every call, a frame taken without learning too; fast: no
+        # background image was learnt, so n is ``frames``)
+        rate = 1.0 / min(2 * self.frames, p.history) if fast else p.learning_rate if learn else 0.0
         self.small = shrink(image, p.scale // prescaled)
         if p.exposure > 0 and not fast:
             if self.reference is None:

@@ -44,7 +44,8 @@ def worker_class(kind: str):
     return getattr(importlib.import_module(module), name)
 
 
-def _cameras(spec):
+def cameras_of(spec) -> set[str] | None:
+    """The cameras a worker's ``cameras`` parameter names (None: all)."""
     cams = spec.params.get("cameras")
     return None if cams in (None, "all") else set(cams)
 
@@ -54,7 +55,7 @@ def upstream_of(layout, spec) -> list[str]:
     stage it consumes (per-camera stages only where the camera sets meet) and, for a
     worker that consumes ``stats``, every worker that is not a sink."""
     me = worker_class(spec.kind)
-    mine = _cameras(spec)
+    mine = cameras_of(spec)
     names = []
     for other in layout.workers:
         if other.name == spec.name:
@@ -66,7 +67,7 @@ def upstream_of(layout, spec) -> list[str]:
             names.append(other.name)
             continue
         for stage in produced & me.consumes(spec):
-            theirs = _cameras(other)
+            theirs = cameras_of(other)
             if stage in me.PER_CAMERA and mine is not None and theirs is not None and not (mine & theirs):
                 continue
             names.append(other.name)

@@ -386,8 +386,8 @@ class Pose(Worker):
     def _restore_cue_frames(self, arrays) -> None:
         """The counts of frames posed with each cue up to the snapshot's frame (the
         frames caught up on after it add theirs), so the figures cover every incarnation."""
-        counts = arrays.get(CUE_FRAMES) if hasattr(arrays, "get") else None
-        if counts is None or np.shape(counts) != (6,) or not np.issubdtype(np.asarray(counts).dtype, np.integer):
+        counts = arrays.get(CUE_FRAMES)
+        if counts is None or counts.shape != (6,) or counts.dtype.kind not in "iu":
             return
         c = [max(0, int(v)) for v in counts]
         self.marker_frames, self.keypoint_frames, self.silhouette_frames = c[0:2], c[2:4], c[4:6]

@@ -134,13 +134,13 @@ class Segmentation(Worker):
         self.segmenters: dict[str, CameraSegmenter] = {}
         self.backgrounds = None
         self.rebuilt: dict[str, int] = {}   # camera -> frames its model was run through again (restarted)
-        self.model_next: dict[str, int] = {}   # a recording: camera -> the next frame its model takes
-        self._starts: dict[str, tuple[int, bool]] = {}
         # build the models before the first frame arrives (live: a model that learns from the
         # stream), and run the kernels once, so a live run's first frames are not lost to it
         cams = self.cameras() or (self.recording.cameras if self.recording else self.known_cameras) or []
         for cam in cams:
             self._segmenter(cam)
+        # a recording: camera -> the next frame its model takes (each frame once, in order)
+        self.model_next = self._stream_starts(self.segmenters) if self.recording is not None else {}
         if cams and calib is not None:
             warm_up(self.seg_params, calib.camera(cams[0]))
         self.markers = None
@@ -163,18 +163,15 @@ class Segmentation(Worker):
             seg = self.segmenters[cam] = camera_segmenter(self.seg_params, self._background(cam), self.calibration, cam)
         return seg
 
-    def _stream_start(self, cam: str) -> tuple[int, bool]:
-        """(the first frame of ``cam``'s stream, whether its grabber skips undecodable
-        frames) on a recording."""
-        got = self._starts.get(cam)
-        if got is None:
-            from workers import producers_of
+    def _stream_starts(self, cams) -> dict[str, int]:
+        """The first frame of each camera's stream on a recording (its grabber's
+        ``start``); whether a grabber skips undecodable frames goes to ``_skip_bad``."""
+        from workers import cameras_of, producers_of
 
-            grabbers = [p for p in (self.layout.worker(n).params for n in producers_of(self.layout, "frame"))
-                        if p.get("cameras", "all") in (None, "all") or cam in p["cameras"]]
-            got = self._starts[cam] = (min((int(p.get("start", 0)) for p in grabbers), default=0),
-                                       any(p.get("skip_bad_frames", False) for p in grabbers))
-        return got
+        grabbers = [self.layout.worker(n) for n in producers_of(self.layout, "frame")]
+        self._skip_bad = any(g.params.get("skip_bad_frames", False) for g in grabbers)
+        return {cam: min((int(g.params.get("start", 0)) for g in grabbers
+                          if cameras_of(g) is None or cam in cameras_of(g)), default=0) for cam in cams}
 
     def _catch_up_model(self, cam: str, upto: int, scale: int) -> None:
         """Run ``cam``'s model through the recording's frames it lacks before ``upto`` (at
@@ -182,15 +179,14 @@ class Segmentation(Worker):
         them (reduced by ``scale``; a frame it could not decode left out): after a restart,
         the model the earlier incarnation had. (Only this camera's: another camera's frames
         may still be on their way, and a model takes each frame once, in order.)"""
-        first, skip_bad = self._stream_start(cam)
-        start = max(first, self.model_next.get(cam, first))
+        start = self.model_next[cam]
         cut = max(start, upto - int(self.params["rebuild_images"]) // max(1, len(self.segmenters)))
         t0, phase = time.monotonic(), self._phase
         self._phase = "rebuilding background models"   # busy, not hung (the heartbeat)
         taken = 0
         try:
             seg = self.segmenters[cam]
-            for _, images in self.recording.frames([cam], cut, upto, skip_bad=skip_bad):
+            for _, images in self.recording.frames([cam], cut, upto, skip_bad=self._skip_bad):
                 seg.apply(shrink(images[cam], scale) if scale > 1 else images[cam], prescaled=scale)
                 self._turned = time.monotonic()
                 taken += 1
@@ -222,8 +218,8 @@ class Segmentation(Worker):
     def handle(self, key: str, msg: Frame) -> None:
         seg = self._segmenter(msg.camera)
         learn = True
-        if self.lossless and self.recording is not None:   # a recording: each frame taken once, in order
-            expected = self.model_next.get(msg.camera, self._stream_start(msg.camera)[0])
+        expected = self.model_next.get(msg.camera) if self.lossless else None
+        if expected is not None:   # a recording: each frame taken once, in order
             if expected < msg.frame:   # restarted: the frames before
                 self._catch_up_model(msg.camera, msg.frame, msg.scale)
             learn = expected <= msg.frame   # else taken already (sent again)
