@@ -284,7 +284,9 @@ def test_a_streamer_with_a_bad_protocol_or_port_is_refused_by_the_layout(tmp_pat
 @pytest.mark.integration
 def test_the_streaming_benchmark_receives_every_frame(tmp_path):
     """``smartroom bench streaming``: streamer processes for OSC, VMC and LSL, 3 people at
-    30 fps for 2 s; every frame (every person-frame for VMC) is received, latencies reported."""
+    30 fps for 2 s; every frame (every person-frame for VMC) is received, latencies reported.
+    Live, a streamer held up for longer than its inbox drops the oldest frames (a busy CI
+    machine): then every frame missing is one it counted as dropped, and no more than a few."""
     from tests.conftest import smartroom
     r = smartroom("bench", "streaming", "--seconds", 2, "--people", 3, "--stream-fps", 30, "--out", tmp_path,
                   timeout=180)
@@ -292,6 +294,9 @@ def test_the_streaming_benchmark_receives_every_frame(tmp_path):
     res = json.loads((tmp_path / "bench_streaming.json").read_text())
     for proto in ("osc", "vmc", "lsl"):
         row = res["protocols"][proto]
-        assert row["received"] == row["expected"] > 0, (proto, row)
+        per_frame = row["expected"] // res["frames"]   # VMC: a bundle per person, 3 people throughout
+        assert row["expected"] == per_frame * res["frames"] > 0, (proto, row)
+        assert row["frames_missing"] == row["inbox_dropped"] <= 0.05 * res["frames"], (proto, row)
+        assert row["received"] == row["expected"] - per_frame * row["frames_missing"], (proto, row)
         assert 0 < row["p50_ms"] <= row["p95_ms"] < 1000, (proto, row)
     assert "p95 ms" in r.stdout

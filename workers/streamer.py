@@ -20,8 +20,10 @@ an unreachable receiver drops the frame's packet, counted in ``send_failed``), a
 LSL outlet keeps at most a minute of samples for a slow inlet. A receiver that starts
 mid-run gets the stream from then on. The frames of several pose workers sharing the
 tracks are joined first (:class:`app.pose_shares.SharedPoses`), as the result writers do.
-Figures: ``packets`` sent, ``send_failed``, ``left_out`` (person-frames beyond the slots)
-and ``send_ms`` (p50/p95 of a frame's arrival in the handler to its last packet sent).
+Figures: ``packets`` sent, ``send_failed``, ``left_out`` (person-frames beyond the slots),
+``send_ms`` (p50/p95 of a frame's arrival in the handler to its last packet sent) and, for
+LSL, ``lsl_inlets`` (whether an inlet takes the samples: liblsl hands an inlet samples
+only from a moment after it reports itself connected).
 """
 from __future__ import annotations
 
@@ -48,6 +50,9 @@ class Streamer(Worker):
     KIND = "streamer"
     CONSUMES = ("poses",)
     ACCEPTS = (Poses,)
+    #: live, a few frames wait while the process is held up (a busy machine's scheduler)
+    #: rather than being dropped at once; behind for longer, the oldest are dropped, counted
+    INBOX_DEPTH = 8
     DEFAULTS = {
         "protocol": "vmc",      # vmc | osc | lsl | json
         "host": "127.0.0.1",    # receiver (vmc, osc)
@@ -157,6 +162,8 @@ class Streamer(Worker):
                    "send_failed": getattr(self, "send_failed", 0)}
         if hasattr(self, "slots"):
             figures["left_out"] = self.slots.left_out
+        if hasattr(self, "outlet"):   # an inlet connected and taking samples (liblsl: a consumer of the outlet)
+            figures["lsl_inlets"] = bool(self.outlet.have_consumers())
         ms = getattr(self, "_send_ms", None)
         if ms:
             figures["send_ms"] = {"p50": round(float(np.percentile(ms, 50)), 3),

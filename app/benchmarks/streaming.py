@@ -7,7 +7,9 @@ worker per protocol as its own process (``smartroom worker NAME --connect``, the
 code as in a run), publishes the simulated crowd6 scene's true joints as the pose stage
 would (6 people; ``Poses`` at ``fps``, paced), and receives what the streamers send:
 UDP sockets for OSC and for each VMC avatar slot, a pylsl inlet for LSL. Reported per
-protocol: frames received of those sent (a person-frame per VMC slot), and the latency
+protocol: frames received of those sent (a person-frame per VMC slot), the frames of
+which nothing arrived (``frames_missing``) and those the streamer dropped, behind
+(``inbox_dropped``: a live streamer's inbox keeps the newest frames), and the latency
 from just before the pose message is published to just after its packet is read here
 (p50/p95/max: the streamer's arrival-to-send plus one zenoh hop and the loopback socket,
 an upper bound of the streamer's own part); and the streamers' own ``send_ms`` (a
@@ -30,6 +32,7 @@ from app.messages import JOINTS, Poses, Stats, decode
 from app.streaming.receiver import UdpReceiver
 
 PEOPLE = 6
+LAST_PACKETS_S = 10.0   # how long the last packets are waited for after the last frame is sent
 
 
 def _crowd(frames: int, fps: float, people: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -53,6 +56,11 @@ def _osc_frame(data: bytes, fps: float, vmc: bool) -> int:
         if not vmc and m.message.address == "/smartroom/frame":
             return int(m.message.params[0])
     return -1
+
+
+def _received(proto: str, udp: dict, lsl_got: list) -> int:
+    """Packets received so far (a frame's bundle, for VMC a person-frame's)."""
+    return len(lsl_got) if proto == "lsl" else sum(len(r.got) for r in udp[proto])
 
 
 def _latency(pairs: list[float]) -> dict:
@@ -85,6 +93,8 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
             params["name"] = lsl_name
         workers.append({"name": f"stream_{proto}", "kind": "streamer", "params": params})
     frames = _crowd(int(seconds * fps), fps, people)
+    # packets due: a frame's; VMC a bundle per person present (crowd6's people enter in its first seconds)
+    expected = {"osc": len(frames), "vmc": sum(len(tr) for tr, _ in frames), "lsl": len(frames)}
     tmp = Path(tempfile.mkdtemp(prefix="smartroom-bench-streaming-"))
     layout = tmp / "layout.yaml"
     layout.write_text(yaml.safe_dump({"room": room, "bus": {"listen": [f"tcp/127.0.0.1:{hub}"]},
@@ -143,6 +153,14 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
 
             lsl_thread = threading.Thread(target=pull, daemon=True)
             lsl_thread.start()
+            # the inlet reports itself connected as it reads the outlet's header; the outlet
+            # takes it on as a consumer a moment later (its own thread, liblsl's tcp_server),
+            # and a sample pushed in between never reaches it: wait for the streamer to say so
+            deadline = time.monotonic() + 20
+            while not stats.get("stream_lsl", {}).get("lsl_inlets") and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if not stats.get("stream_lsl", {}).get("lsl_inlets"):
+                raise RuntimeError("the LSL outlet took no inlet within 20 s")
         say(f"streamers up; publishing {len(frames)} frames of {people} people at {fps:g} fps")
         pub = Publisher(session, keys.poses(), droppable=False)
         epoch = time.time_ns() // 1_000_000
@@ -155,7 +173,12 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
             sent.append(stamp)
             pub.put(Poses(frame=i, stamp=stamp, t=i / fps, epoch=epoch, worker="pose", tracks=tracks,
                           joints=joints, active=np.ones(joints.shape[:2], bool)))
-        time.sleep(1.5)   # the last packets, and a last second of stats
+        # the last packets (a busy machine may hold them a while), and a last second of stats
+        time.sleep(1.5)
+        deadline = time.monotonic() + LAST_PACKETS_S
+        while time.monotonic() < deadline and any(
+                _received(proto, udp, lsl_got) < expected[proto] for proto in protocols):
+            time.sleep(0.1)
         if inlet is not None:
             stop_lsl.set()
             lsl_thread.join(2)
@@ -175,30 +198,32 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
         session.close()
     sent_at = np.asarray(sent)
     result = {"seconds": seconds, "fps": fps, "people": people, "frames": len(frames), "protocols": {}}
+    # frames a protocol sends a packet for (VMC: a frame with people)
+    due = {proto: {i for i, (tr, _) in enumerate(frames) if len(tr) or proto != "vmc"} for proto in protocols}
     for proto in protocols:
         row: dict = {}
+        lat, received, got = [], 0, set()
         if proto in udp:
-            lat, received = [], 0
             for r in udp[proto]:
                 for when, data in r.got:
                     f = _osc_frame(data, fps, vmc=proto == "vmc")
                     if 0 <= f < len(sent_at):
                         lat.append(when - sent_at[f])
                         received += 1
-            # VMC: a bundle per person present (crowd6's people enter in its first seconds)
-            expected = sum(len(tr) for tr, _ in frames) if proto == "vmc" else len(frames)
-            row.update({"received": received, "expected": expected})
+                        got.add(f)
         else:
-            lat = []
             for when, stamp in lsl_got:
                 f = int(np.argmin(np.abs(sent_at - stamp)))
                 lat.append(when - sent_at[f])
-            row.update({"received": len(lsl_got), "expected": len(frames)})
+                received += 1
+                got.add(f)
+        # frames of which nothing arrived: each should be one the streamer counted as dropped
+        row.update({"received": received, "expected": expected[proto], "frames_missing": len(due[proto] - got)})
         row.update(_latency(lat))
         figures = stats.get(f"stream_{proto}", {})
         row["streamer_send_ms"] = figures.get("send_ms", {})
         row["send_failed"] = figures.get("send_failed")
-        row["inbox_dropped"] = figures.get("dropped")
+        row["inbox_dropped"] = figures.get("items_dropped")
         result["protocols"][proto] = row
     return result
 
@@ -206,9 +231,10 @@ def run(seconds: float = 10.0, fps: float = 60.0, people: int = PEOPLE, protocol
 def table(result: dict) -> str:
     lines = [f"streamers: {result['people']} people at {result['fps']:g} fps, {result['frames']} frames "
              f"({result['seconds']:g} s); latency from publishing the pose message to reading the packet",
-             f"{'protocol':<9}{'received':>16}{'p50 ms':>9}{'p95 ms':>9}{'max ms':>9}{'send p95 ms':>13}"]
+             f"{'protocol':<9}{'received':>16}{'dropped':>9}{'p50 ms':>9}{'p95 ms':>9}{'max ms':>9}{'send p95 ms':>13}"]
     for proto, row in result["protocols"].items():
         got = f"{row['received']}/{row['expected']}"
-        lines.append(f"{proto:<9}{got:>16}{row.get('p50_ms', float('nan')):>9.2f}{row.get('p95_ms', float('nan')):>9.2f}"
+        dropped = row.get("inbox_dropped")
+        lines.append(f"{proto:<9}{got:>16}{'?' if dropped is None else dropped:>9}{row.get('p50_ms', float('nan')):>9.2f}{row.get('p95_ms', float('nan')):>9.2f}"
                      f"{row.get('max_ms', float('nan')):>9.2f}{row['streamer_send_ms'].get('p95', float('nan')):>13.2f}")
     return "\n".join(lines)
