@@ -17,8 +17,9 @@ One protocol per streamer (a layout may have several), ``params.protocol``:
 A streamer never slows the pipeline: it acknowledges no frame (the source never waits
 for it), UDP datagrams go out through a non-blocking socket (a full socket buffer or
 an unreachable receiver drops the frame's packet, counted in ``send_failed``), and an
-LSL outlet keeps at most a minute of samples for a slow inlet. A receiver that starts
-mid-run gets the stream from then on. The frames of several pose workers sharing the
+LSL outlet keeps at most a minute of samples for a slow inlet. Live, the streamer's inbox
+holds 8 frames; a streamer further behind drops the oldest, counted in ``items_dropped``.
+A receiver that starts mid-run gets the stream from then on. The frames of several pose workers sharing the
 tracks are joined first (:class:`app.pose_shares.SharedPoses`), as the result writers do.
 Figures: ``packets`` sent, ``send_failed``, ``left_out`` (person-frames beyond the slots),
 ``send_ms`` (p50/p95 of a frame's arrival in the handler to its last packet sent) and, for
