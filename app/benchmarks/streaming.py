@@ -234,7 +234,8 @@ def table(result: dict) -> str:
              f"{'protocol':<9}{'received':>16}{'dropped':>9}{'p50 ms':>9}{'p95 ms':>9}{'max ms':>9}{'send p95 ms':>13}"]
     for proto, row in result["protocols"].items():
         got = f"{row['received']}/{row['expected']}"
-        dropped = row.get("inbox_dropped")
-        lines.append(f"{proto:<9}{got:>16}{'?' if dropped is None else dropped:>9}{row.get('p50_ms', float('nan')):>9.2f}{row.get('p95_ms', float('nan')):>9.2f}"
-                     f"{row.get('max_ms', float('nan')):>9.2f}{row['streamer_send_ms'].get('p95', float('nan')):>13.2f}")
+        dropped = "?" if row.get("inbox_dropped") is None else row["inbox_dropped"]
+        lines.append(f"{proto:<9}{got:>16}{dropped:>9}{row.get('p50_ms', float('nan')):>9.2f}"
+                     f"{row.get('p95_ms', float('nan')):>9.2f}{row.get('max_ms', float('nan')):>9.2f}"
+                     f"{row['streamer_send_ms'].get('p95', float('nan')):>13.2f}")
     return "\n".join(lines)
