@@ -237,7 +237,9 @@ def test_the_viewer_scene_draws_the_triangulated_keypoints():
 def test_the_live_page_shows_the_keypoints_beside_the_skeleton(tmp_path):
     """The keypoints layout with its viewer, paced, on random tuning scene 5 (4 s), read
     in headless Chromium: a frame on show carries the track's triangulated keypoints
-    with its voxels, track and skeleton."""
+    with its voxels, track and skeleton. (A stage not heard of yet is not waited for: on a
+    busy machine whose pose worker is still compiling, the first frames show without
+    skeletons, as the viewer means them to; the test waits for a frame with both.)"""
     _need_detector()
     from tests.browser import watch_live_run
     from tests.conftest import smartroom
@@ -246,9 +248,11 @@ def test_the_live_page_shows_the_keypoints_beside_the_skeleton(tmp_path):
     r = smartroom("simulate", "--random", 5, "--seconds", 4, "--out", rec, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     rc, seen = watch_live_run("deploy/layouts/keypoints.yaml", rec, tmp_path / "out", tmp_path, lambda state: (
-        "keypoints" in state["frame"]["parts"] and any(k.startswith("keypoints ") for k in state["children"])))
+        {"poses", "keypoints"} <= set(state["frame"]["parts"])
+        and any(k.startswith("keypoints ") for k in state["children"])
+        and any(k.startswith("skeleton ") for k in state["children"])))
     assert rc == 0
-    assert seen is not None, "no frame with keypoints was shown"
+    assert seen is not None, "no frame with keypoints and a skeleton was shown"
     assert set(seen["frame"]["parts"]) == {"voxels", "tracks", "poses", "keypoints"}
     tracks = {k.split()[1] for k in seen["children"] if k.startswith("track ")}
     assert {k.split()[1] for k in seen["children"] if k.startswith("keypoints ")} <= tracks
