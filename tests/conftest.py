@@ -9,21 +9,6 @@ from tests.synthetic import write_tiny_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: the test modules that take longest (seconds of one test process, summed over the
-#: module's tests and fixtures: `pytest --durations`, 2026-11-29), longest first. They are
-#: handed out first (pyproject: `--no-loadscope-reorder`), so the run does not end on one
-#: process finishing a 2-minute module while the others are idle; the rest keep their order.
-SLOW_MODULES = ("test_multi_host", "test_watchdog", "test_stage_state", "test_restarts", "test_markers",
-                "test_faults", "test_keypoints", "test_pose_replay", "test_pipeline", "test_scale_out",
-                "test_statures", "test_bus_flood", "test_monitor", "test_upstream_ends", "test_behaviour",
-                "test_viewer_live")
-
-
-def pytest_collection_modifyitems(config, items):
-    """The slow modules first, longest first (:data:`SLOW_MODULES`); a stable sort."""
-    rank = {name: k for k, name in enumerate(SLOW_MODULES)}
-    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))
-
 
 @pytest.fixture(scope="session")
 def tiny_recording(tmp_path_factory):
