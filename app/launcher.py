@@ -486,7 +486,9 @@ class Launcher:
     def _frames_passed(self) -> list[str]:
         """Offline, frames the source sent on past a stage that was away too long, and
         frames a restarted stage carried on without (the stage before it restarted with it:
-        nothing sent them again): nothing may be lost on a recording, the run is incomplete."""
+        nothing sent them again), frames built without a view waited for in vain
+        (``frames_stalled``, :mod:`app.reconstruction.assembly`): nothing may be lost on a
+        recording, the run is incomplete."""
         if not self.layout.run.recording:
             return []
         out = []
@@ -496,6 +498,10 @@ class Launcher:
                 if isinstance(n, int) and n > 0:
                     out.append(f"{worker}: {n} frames went on without it (away longer than the source "
                                f"waits, {name} said)")
+            n = s.figures.get("frames_stalled")
+            if isinstance(n, int) and n > 0:
+                out.append(f"{name}: {n} frames built without a camera's mask it waited for in vain "
+                           f"(its producer on the bus sent nothing for 30 s)")
             n = s.figures.get("not_sent_again")
             if isinstance(n, int) and n > 0:
                 out.append(f"{name}: {n} frames after its restored state were not sent again (a stage before "

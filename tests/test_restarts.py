@@ -222,7 +222,8 @@ def test_frames_a_restarted_stage_carried_on_without_make_a_recording_run_incomp
     before it restarted with it: the pose worker killed and the tracker terminated within a
     second on walk1 lost a frame) says so in its figures (``not_sent_again``); on a
     recording the launcher then calls the run incomplete and says why, as for frames the
-    source sent on without a stage; live, frames may be lost."""
+    source sent on without a stage and frames built without a view waited for in vain
+    (``frames_stalled``, issue 25's 90-s link cut); live, frames may be lost."""
     from types import SimpleNamespace
 
     from app.config import load_layout
@@ -232,10 +233,13 @@ def test_frames_a_restarted_stage_carried_on_without_make_a_recording_run_incomp
     layout.run.recording, layout.run.out = str(tmp_path / "rec"), str(tmp_path / "out")
     launcher = Launcher(layout)
     launcher.stats = {"pose": SimpleNamespace(figures={"not_sent_again": 2}),
+                      "reconstruction": SimpleNamespace(figures={"frames_stalled": 1}),
                       "tracking": SimpleNamespace(figures={"repeats_skipped": 3})}
     assert not launcher.complete
     assert launcher._frames_passed() == ["pose: 2 frames after its restored state were not sent again (a stage "
-                                         "before it restarted with it): carried on without them"]
+                                         "before it restarted with it): carried on without them",
+                                         "reconstruction: 1 frames built without a camera's mask it waited for "
+                                         "in vain (its producer on the bus sent nothing for 30 s)"]
     layout.run.recording = None
     live = Launcher(layout)
     live.stats = launcher.stats

@@ -4,10 +4,13 @@
 Masks arrive per camera and are assembled by frame index. Each mask carries the frame
 set (the cameras the grabber sent for that index), so the worker knows which views a
 frame has. A frame is reconstructed, in frame order, once every camera of its set has
-delivered, except cameras whose segmentation worker has left the bus (crashed):
+delivered or is not worth waiting for (:mod:`app.reconstruction.assembly`):
 
-- offline (a recording) there is no other reason to give up on a view, so two runs
-  give the same voxels on an idle and on a loaded machine;
+- offline (a recording) a view is waited for while its segmentation worker is away
+  (restarting, on a host whose link is down), so two runs give the same voxels on an
+  idle and on a loaded machine; one still missing ``STALL_S`` after the frame's first
+  mask with its producer on the bus is given up and counted (``frames_stalled``: the run
+  is not complete);
 - live, a view may also be given up after ``wait_ms`` (a camera is waited for from its
   first mask on, and stops being waited for after ``camera_timeout_s`` of its own
   silence); every view given up is counted per camera (``late``).
@@ -29,13 +32,12 @@ import numpy as np
 
 from app.errors import InputError
 from app.messages import MAX_GRID_CELLS, Mask, Voxels
+from app.reconstruction.assembly import FrameAssembly
 from app.reconstruction.grid import VoxelGrid
 from app.reconstruction.reconstructor import PIPELINE_CARVING
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
 from workers.base import RECENT_FRAMES, Worker
 
-MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
-STALL_S = 30.0    # offline safety net: a view this late is given up (and counted) all the same
 
 
 class Reconstruction(Worker):
@@ -133,12 +135,8 @@ class Reconstruction(Worker):
         self.calibration = calib
         self.names = list(calib.names)
         self.mask_sizes, self.colour_sizes = mask_sizes, colour_sizes
-        self.pending: dict[int, dict] = {}     # frame -> {"first": t, "masks": {cam: Mask}, "expected": set}
-        self.last_seen: dict[str, float] = {}  # camera -> its latest mask (live silence), from its first mask on
-        self.newest_mask: dict[str, int] = {}  # camera -> its newest frame: a camera's masks come in order
-        self.producers = self._producers()
-        self.newest_done = -1
-        self.late = {n: 0 for n in self.names}  # views given up on, per camera
+        self.assembly = FrameAssembly(self.names, self._producers(), self.lossless, wait_s=p["wait_ms"] / 1e3,
+                                      camera_timeout_s=p["camera_timeout_s"])
         self.too_few_views = 0                   # frames dropped for fewer than min_views cameras
         self.partial_frames = 0                  # frames built without a camera of their set
         self.timings: dict[str, deque] = {}   # the last RECENT_FRAMES frames' step times
@@ -182,77 +180,32 @@ class Reconstruction(Worker):
 
     # -- assembly ---------------------------------------------------------------------
     def admit(self, key: str, msg: Mask) -> str | None:
-        if msg.camera not in self.late:
+        if msg.camera not in self.assembly.late:
             return "unknown camera"
         if (msg.width, msg.height) != self.mask_sizes.get(msg.camera):
             return f"mask {msg.width}x{msg.height} does not match the tables {self.mask_sizes.get(msg.camera)}"
         return None
 
     def new_epoch(self, epoch: int) -> None:
-        if self.pending:
-            self.log.warning("%d unfinished frames of the old epoch given up", len(self.pending))
-        self.pending, self.newest_done, self.newest_mask = {}, -1, {}
+        n = self.assembly.reset()
+        if n:
+            self.log.warning("%d unfinished frames of the old epoch given up", n)
 
     def handle(self, key: str, msg: Mask) -> None:
         now = time.monotonic()
-        self.last_seen[msg.camera] = now
-        self.newest_mask[msg.camera] = max(msg.frame, self.newest_mask.get(msg.camera, -1))
-        if msg.frame <= self.newest_done:
-            self.late[msg.camera] += 1   # its frame was built (or given up) without it
-            return
-        entry = self.pending.get(msg.frame)
-        if entry is None:
-            expected = set(msg.cameras) & set(self.names) or set(self.names)
-            entry = self.pending[msg.frame] = {"first": now, "masks": {}, "expected": expected, "frame": msg.frame}
-        entry["masks"][msg.camera] = msg
-        self._decide(now)
-
-    def _missing(self, entry: dict, now: float) -> set[str]:
-        """Cameras of the frame's set still worth waiting for."""
-        missing = entry["expected"] - set(entry["masks"])
-        # a camera whose every segmentation worker has left the bus sends nothing more (offline:
-        # unless it is restarting; it is sent the frames again), and one that has sent a later
-        # frame will not send this one (a camera's masks come in order)
-        missing = {c for c in missing if (not self.producers.get(c) or self.producers[c] & self.alive
-                                          or (self.lossless and not self.producers[c] <= self._ended_upstream))
-                   and self.newest_mask.get(c, -1) < entry["frame"]}
-        if not self.lossless:   # live: a camera silent for long is not waited for
-            timeout = self.params["camera_timeout_s"]
-            missing = {c for c in missing if c not in self.last_seen or now - self.last_seen[c] <= timeout}
-        return missing
+        if self.assembly.add(msg.camera, msg.frame, msg.cameras, msg, now):
+            self._decide(now)
 
     def _decide(self, now: float, final: bool = False) -> None:
-        """Reconstruct the pending frames in order while the oldest has every view it
-        can get; live, also once it has waited ``wait_ms`` or a newer frame is complete."""
-        wait = self.params["wait_ms"] / 1e3
-        if not self.lossless and not final:
-            complete = [f for f, e in self.pending.items() if not self._missing(e, now)]
-            if len(self.pending) > MAX_BACKLOG and complete:
-                newest = max(complete)   # behind: skip to the newest complete frame
-                for f in [f for f in self.pending if f < newest][:-MAX_BACKLOG]:
-                    del self.pending[f]  # (counted as dropped by the ledger)
-        while self.pending:
-            frame = min(self.pending)
-            entry = self.pending[frame]
-            missing = set() if final else self._missing(entry, now)
-            if missing:
-                waited = now - entry["first"]
-                newer_complete = not self.lossless and any(
-                    not self._missing(e, now) for f, e in self.pending.items() if f > frame)
-                if self.lossless and waited < STALL_S:
-                    return
-                if not self.lossless and waited < wait and not newer_complete:
-                    return
-                if self.lossless:
-                    self.log.warning("frame %d: no mask from %s after %.0f s; going on without", frame,
-                                     ", ".join(sorted(missing)), waited)
-            del self.pending[frame]
-            for c in entry["expected"] - set(entry["masks"]):
-                self.late[c] += 1
-            self._reconstruct(frame, entry["masks"], partial=entry["expected"] - set(entry["masks"]))
+        """Reconstruct the frames that are ready, in order (app.reconstruction.assembly)."""
+        for r in self.assembly.ready(now, self.alive, self._ended_upstream, final=final):
+            if r.stalled:
+                self.log.warning("frame %d: no mask from %s after %.0f s; going on without (the run is not "
+                                 "complete)", r.frame, ", ".join(sorted(r.stalled)), r.waited)
+            self._reconstruct(r.frame, r.masks, r.partial)
 
     def tick(self) -> None:
-        if self.pending:
+        if self.assembly.pending:
             self._decide(time.monotonic())
 
     def flush(self) -> None:
@@ -260,7 +213,6 @@ class Reconstruction(Worker):
 
     # -- one frame ----------------------------------------------------------------------
     def _reconstruct(self, frame: int, masks: dict, partial: set) -> None:
-        self.newest_done = max(self.newest_done, frame)
         try:
             self._build(frame, masks, partial)
         finally:
@@ -300,8 +252,11 @@ class Reconstruction(Worker):
     def extra_figures(self) -> dict:
         recent = getattr(self, "timings", {})
         occ = getattr(self, "occupied", ())
+        assembly = getattr(self, "assembly", None)
         return {"step_ms": {k: round(float(np.mean(v)), 3) for k, v in recent.items() if v},
                 "occupied_voxels": int(np.mean(occ)) if occ else 0,
-                "late_views": {c: n for c, n in getattr(self, "late", {}).items() if n},
+                "late_views": {c: n for c, n in (assembly.late if assembly else {}).items() if n},
+                # offline: frames built without a view waited for in vain (the run is not complete)
+                "frames_stalled": assembly.stalled if assembly else 0,
                 "frames_too_few_views": getattr(self, "too_few_views", 0),
                 "frames_partial": getattr(self, "partial_frames", 0)}
