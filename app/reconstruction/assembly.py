@@ -21,19 +21,23 @@ sent for that index) has delivered, or is not worth waiting for:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 __all__ = ["FrameAssembly", "Ready", "MAX_BACKLOG", "STALL_S"]
 
 MAX_BACKLOG = 3   # live: frames ready at once beyond which the stage is behind and skips to the newest
 STALL_S = 30.0    # offline safety net: a view this late is given up (and counted) all the same
 
 
+@dataclass(slots=True)
 class Ready:
     """A frame to build: its masks by camera, the cameras of its set it goes without,
-    and those of them it waited for in vain (offline, ``stall_s``)."""
-    __slots__ = ("frame", "masks", "partial", "stalled", "waited")
-
-    def __init__(self, frame: int, masks: dict, partial: set, stalled: set, waited: float):
-        self.frame, self.masks, self.partial, self.stalled, self.waited = frame, masks, partial, stalled, waited
+    those of them it waited for in vain (offline, ``stall_s``), and how long it waited (s)."""
+    frame: int
+    masks: dict
+    partial: set
+    stalled: set
+    waited: float
 
 
 class FrameAssembly:
