@@ -141,13 +141,18 @@ def _monitor_lines(stdout):
 
 @pytest.mark.integration
 def test_paced_recording_runs_at_rtf_one(long_recording, tmp_path, spine_layout):
-    r = smartroom("run", "--recording", long_recording, "--frames", 100, "--headless", "--out", tmp_path / "o",
+    """A paced run keeps the recording's rate: the median of the monitor's windows past the
+    first is near 1. 150 frames (6 s): with 100 it had one such window, and a window in
+    which the source caught up a warm-up lag (up to ``catch_up_s``, 1 s) read 1.18 on a
+    loaded machine."""
+    r = smartroom("run", "--recording", long_recording, "--frames", 150, "--headless", "--out", tmp_path / "o",
                   "--layout", spine_layout, "--set", "monitor.line_period=1")
     assert r.returncode == 0, r.stderr
     lines = _monitor_lines(r.stdout)
     assert lines[-1]["verdict"] != "waiting"
     steady = [d for d in lines[:-1] if d["verdict"] != "waiting"][1:] or lines[-1:]  # past the first window
     rtfs = sorted(float(d["rtf"]) for d in steady)
+    print("windows past the first:", rtfs)
     assert 0.85 <= rtfs[len(rtfs) // 2] <= 1.1, rtfs  # the median window (machines here are noisy)
     assert lines[-1]["verdict"] == "real-time"
 
