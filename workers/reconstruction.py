@@ -8,7 +8,7 @@ delivered or is not worth waiting for (:mod:`app.reconstruction.assembly`):
 
 - offline (a recording) a view is waited for while its segmentation worker is away
   (restarting, on a host whose link is down), so two runs give the same voxels on an
-  idle and on a loaded machine; one still missing ``STALL_S`` after the frame's first
+  idle and on a loaded machine; one still missing 30 s (``STALL_S``) after the frame's first
   mask with its producer on the bus is given up and counted (``frames_stalled``: the run
   is not complete);
 - live, a view may also be given up after ``wait_ms`` (a camera is waited for from its
@@ -37,7 +37,6 @@ from app.reconstruction.grid import VoxelGrid
 from app.reconstruction.reconstructor import PIPELINE_CARVING
 from app.segmentation import SILHOUETTE_FACTOR, reduce_mask, working_size
 from workers.base import RECENT_FRAMES, Worker
-
 
 
 class Reconstruction(Worker):
