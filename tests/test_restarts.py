@@ -167,9 +167,13 @@ def test_the_tracking_and_pose_stages_survive_kills_too(recording_20s, tmp_path)
 
 def test_a_worker_restarted_after_its_upstream_ended_still_finishes(long_recording, tmp_path):
     """The end of stream went by while the recorder was down: the launcher says it again,
-    so the restarted recorder completes its files instead of waiting for ever."""
+    so the restarted recorder completes its files instead of waiting for ever. (A stage
+    that takes 3 s to end keeps the recorder, which waits for every stage's end, running
+    after the grabber's end: each stage ends about 0.1 s after the one before it, sooner
+    than the launcher's stats.json says the grabber ended.)"""
     out = tmp_path / "out"
-    layout = write_layout(tmp_path / "layout.yaml")
+    slow = {"name": "slow", "kind": "tests.slow_stage:SlowStage", "params": {"delay_ms": 0.0, "flush_ms": 3000.0}}
+    layout = write_layout(tmp_path / "layout.yaml", extra_workers=[slow])
     proc = start_smartroom("run", "--recording", long_recording, "--headless", "--no-pace", "--layout", layout,
                            "--out", out)
     try:

@@ -850,6 +850,7 @@ class Worker(Restarts):
                             EndOfStream(frame=self.ledger.last_frame, stamp=time.time(), worker=self.name,
                                         stage=self.stage, frames=frames, first=first, fps=fps, figures=figures,
                                         epoch=self._epoch))
+                    self._leave()   # its consumers count its end once it has left
                     time.sleep(0.2)  # let the last messages leave before the session closes
                 finally:
                     for s in self._subs:
@@ -857,9 +858,17 @@ class Worker(Restarts):
                             s.undeclare()
                         except Exception:  # noqa: BLE001 - closing anyway
                             pass
-                    if self._token is not None:
-                        self._token.undeclare()
+                    self._leave()
                     self.session.close()
+
+    def _leave(self) -> None:
+        """Leave the bus (drop the liveliness token). A consumer counts an end of stream
+        once its sender has left, so a worker leaves as soon as its last messages are sent,
+        not after lingering for them to go out: each stage of an offline run used to end
+        0.2 s after the one before it, 1.2 s on the way down the default layout."""
+        token, self._token = self._token, None
+        if token is not None:
+            token.undeclare()
 
     def stream_info(self) -> tuple[int, int, float]:
         """``(frames, first index, fps)`` of the stream, as the source announced it
