@@ -66,6 +66,7 @@ from app.bus import BusConfig, Keys, Publisher, decode_sample, free_port, open_s
 from app.config import Layout
 from app.errors import InputError
 from app.files import write_json
+from app.forkserver import SPAWN_ENV, ForkServer
 from app.frame_shares import count_own
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
@@ -198,6 +199,7 @@ class Launcher:
         self._last_stats_write = 0.0
         self._reserve = self.out / ".reserve"
         self.started = time.time()   # the run's start-up is counted from here (stats.json "startup")
+        self._forks = None
 
     def _mine(self, w) -> bool:
         """A worker this launcher starts: its host's (``--host``), else the local ones."""
@@ -212,11 +214,34 @@ class Launcher:
                  for q in self.procs if q.ended and (e := self.eos.get(q.name)) is not None]
         env = dict(os.environ, PYTHONUNBUFFERED="1", **{LAUNCHED_ENV: "1", LAUNCHER_PID_ENV: str(os.getpid()),
                                                         ENDED_ENV: json.dumps(ended)})
-        p.popen = subprocess.Popen(cmd, env=env, start_new_session=True)
+        p.popen = None
+        if self._forks is not None:
+            try:
+                p.popen = self._forks.start(cmd[3:], env, os.getcwd())
+            except OSError as exc:
+                self._no_forks(exc)
+        if p.popen is None:
+            p.popen = subprocess.Popen(cmd, env=env, start_new_session=True)
         p.rc = None
         p.hung = None
         with self._lock:
             self.watchdog.started(p.name, p.popen.pid)
+
+    def _start_forks(self) -> None:
+        """Workers forked from a warm parent (:mod:`app.forkserver`) unless
+        ``SMARTROOM_SPAWN=exec``; its imports overlap the bus's start."""
+        if os.environ.get(SPAWN_ENV, "fork") != "exec":
+            try:
+                self._forks = ForkServer()
+            except OSError as exc:
+                self._no_forks(exc)
+
+    def _no_forks(self, exc: OSError) -> None:
+        """The fork server cannot be used: fresh processes from now on."""
+        print(f"smartroom: the fork server failed ({exc}); workers start as fresh processes", file=sys.stderr)
+        if self._forks is not None:
+            self._forks.close()
+        self._forks = None
 
     def _signal(self, p: _Proc, sig) -> None:
         if p.popen is not None and p.popen.poll() is None:
@@ -280,17 +305,29 @@ class Launcher:
             return True
 
     # -- the run ------------------------------------------------------------------
-    def run(self) -> int:
-        """Start everything and wait for the end; the exit code of the run."""
-        self.started = time.time()
+    def _open_bus(self):
+        """This launcher's zenoh session: the hub (a router) where this host runs it, else
+        a client of the hub elsewhere."""
         if self.host is None:
             acl = None
             if self.hub_bus.acl is not None:   # who may publish what, from the layout (app.bus_acl)
                 from app.bus_acl import certificate_name, room_access_control
                 acl = room_access_control(self.layout, certificate_name(self.hub_bus.tls.cert))
-            session = self._session = open_session(self.hub_bus, mode="router", access_control=acl)
+            self._session = open_session(self.hub_bus, mode="router", access_control=acl)
         else:
-            session = self._session = open_session(self.layout.bus.for_worker(), mode="client")
+            self._session = open_session(self.layout.bus.for_worker(), mode="client")
+        return self._session
+
+    def run(self) -> int:
+        """Start everything and wait for the end; the exit code of the run."""
+        self.started = time.time()
+        self._start_forks()
+        try:
+            session = self._open_bus()
+        except BaseException:
+            if self._forks is not None:
+                self._forks.close()
+            raise
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
         subs = [session.declare_subscriber(keys.stats(), self._on_control),
@@ -308,6 +345,8 @@ class Launcher:
             for s, h in previous.items():
                 signal.signal(s, h)
             self._terminate_all()
+            if self._forks is not None:
+                self._forks.close()
             time.sleep(0.1)   # the last final stats
             for sub in subs:
                 sub.undeclare()

@@ -310,20 +310,23 @@ def walk(tmp_path_factory):
 
 
 def test_tracks_and_poses_do_not_depend_on_machine_load(walk, tmp_path):
-    """The whole default pipeline (to tracking and pose) twice on one recording, once beside
-    two CPU hogs: the same tracks.jsonl and poses.jsonl, byte for byte."""
+    """The whole default pipeline (to tracking and pose) on one recording, once beside two
+    CPU hogs, and once with every worker a fresh process instead of forked from the
+    launcher's fork server (``SMARTROOM_SPAWN=exec``, app.forkserver): the same
+    tracks.jsonl and poses.jsonl, byte for byte."""
     files = []
-    for name, loaded in (("idle", False), ("loaded", True)):
+    for name, loaded, spawn in (("idle", False, "fork"), ("loaded", True, "fork"), ("exec", False, "exec")):
         hogs = hog() if loaded else []
         try:
             r = smartroom("run", "--recording", walk, "--headless", "--no-pace", "--out", tmp_path / name,
-                          timeout=300)
+                          timeout=300, env=dict(os.environ, SMARTROOM_SPAWN=spawn))
         finally:
             for h in hogs:
                 h.kill()
         assert r.returncode == 0, r.stderr
+        assert "fork server" not in r.stderr
         files.append([(tmp_path / name / f).read_bytes() for f in ("tracks.jsonl", "poses.jsonl")])
-    assert files[0] == files[1]
+    assert files[0] == files[1] == files[2]
     tracks = [json.loads(line) for line in files[0][0].decode().splitlines()]
     assert len(tracks) == 50 and sum(len(t["tracks"]) for t in tracks) >= 40   # somebody was tracked
 
