@@ -17,8 +17,10 @@ signals it and restarts it as a child of its own, and the worker's watch for its
 as does any platform without ``prctl`` (Linux only) or a server that fails.
 
 The server opens no zenoh session and starts no thread of its own (a session's runtime
-threads would not survive a fork); the BLAS thread pools of numpy and scipy stop and
-start again across ``fork`` (OpenBLAS's ``pthread_atfork`` handlers). What it imports is
+threads would not survive a fork), and calls nothing of OpenCV's or numba's that starts a
+thread pool; its only other threads are the idle pools of the three OpenBLAS libraries
+its imports load (numpy's, scipy's and the one OpenCV's wheel bundles), which OpenBLAS
+stops and starts again across ``fork`` (its ``pthread_atfork`` handlers). What it imports is
 :data:`PRELOADED`'s kinds; the others (the viewer, the streamer, the keypoint cue, plugins)
 import their modules after the fork, as before.
 
