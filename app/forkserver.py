@@ -54,15 +54,13 @@ _PR_SET_CHILD_SUBREAPER = 36
 
 
 def preload() -> None:
-    """What every worker imports first: numpy, OpenCV, zenoh, numba and its CPU target
-    (registries, and scipy's BLAS it looks for), the worker kinds and their cached kernels."""
+    """What every worker imports first: numpy, OpenCV, zenoh, numba, the worker kinds and
+    their cached kernels (loading them builds numba's CPU target, with scipy's BLAS it
+    looks for)."""
     import importlib
-
-    from numba.core.registry import cpu_target
 
     for module in ("numpy", "cv2", "yaml", "zenoh", "app.cli", *(f"workers.{kind}" for kind in PRELOADED)):
         importlib.import_module(module)
-    cpu_target.target_context   # noqa: B018 - numba's CPU target, built once here
     load_cached_kernels()
 
 

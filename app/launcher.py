@@ -207,9 +207,7 @@ class Launcher:
 
     # -- processes ----------------------------------------------------------------
     def _spawn(self, p: _Proc) -> None:
-        cmd = [sys.executable, "-m", "app.cli", "worker", p.name, "--layout", str(self.layout_path)]
-        if self.verbose:
-            cmd.append("--verbose")
+        argv = ["worker", p.name, "--layout", str(self.layout_path)] + (["--verbose"] if self.verbose else [])
         ended = [{"worker": q.name, "frames": e.frames, "first": e.first, "fps": e.fps}
                  for q in self.procs if q.ended and (e := self.eos.get(q.name)) is not None]
         env = dict(os.environ, PYTHONUNBUFFERED="1", **{LAUNCHED_ENV: "1", LAUNCHER_PID_ENV: str(os.getpid()),
@@ -217,11 +215,11 @@ class Launcher:
         p.popen = None
         if self._forks is not None:
             try:
-                p.popen = self._forks.start(cmd[3:], env, os.getcwd())
+                p.popen = self._forks.start(argv, env, os.getcwd())
             except OSError as exc:
                 self._no_forks(exc)
         if p.popen is None:
-            p.popen = subprocess.Popen(cmd, env=env, start_new_session=True)
+            p.popen = subprocess.Popen([sys.executable, "-m", "app.cli", *argv], env=env, start_new_session=True)
         p.rc = None
         p.hung = None
         with self._lock:
