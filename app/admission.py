@@ -130,6 +130,7 @@ class Rejections:
         self.counts: dict[tuple[str, str], int] = {}
         self._per_reason: dict[str, int] = {}
         self._logged: dict[str, tuple[float, int]] = {}   # reason -> (time, count then)
+        self._total = 0   # kept as it goes: read for every message turned away (a flood)
         self._lock = threading.Lock()
 
     def add(self, key: str, reason: str, detail: str = "") -> None:
@@ -137,6 +138,7 @@ class Rejections:
         now = self.clock()
         with self._lock:
             self.counts[k] = self.counts.get(k, 0) + 1
+            self._total += 1
             total = self._per_reason[reason] = self._per_reason.get(reason, 0) + 1
             last = self._logged.get(reason)
             say = last is None or now - last[0] >= LOG_PERIOD_S
@@ -149,8 +151,7 @@ class Rejections:
 
     @property
     def total(self) -> int:
-        with self._lock:
-            return sum(self.counts.values())
+        return self._total
 
     def figures(self) -> dict:
         """``{"key: reason": count}`` for the stats."""
@@ -163,4 +164,5 @@ class Rejections:
                 key, _, reason = str(text).rpartition(": ")
                 if isinstance(n, int):
                     self.counts[(key, reason)] = self.counts.get((key, reason), 0) + n
+                    self._total += n
                     self._per_reason[reason] = self._per_reason.get(reason, 0) + n

@@ -16,8 +16,10 @@ reconnects by itself.
 from __future__ import annotations
 
 import json
+import logging
 import re
 import socket
+import threading
 import time
 from dataclasses import dataclass, field, replace
 
@@ -27,7 +29,7 @@ from app.bus_section import AclConfig, AuthConfig, TlsConfig, check_endpoints
 from app.errors import InputError
 from app.messages import Message, MessageError, decode
 
-__all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "MessageError"]
+__all__ = ["BusConfig", "Keys", "open_session", "free_port", "Publisher", "Inlet", "MessageError"]
 
 CLIENT_CONNECT_S = 30.0   # a worker waits this long for the hub when its session opens
 
@@ -202,3 +204,81 @@ class Publisher:
 def decode_sample(sample) -> Message:
     """Decode a zenoh sample's payload (raises :class:`MessageError`)."""
     return decode(sample.payload.to_bytes())
+
+
+class Inlet:
+    """Subscriptions whose messages may wait a few milliseconds (stats, ends of stream,
+    heartbeats, acknowledgements), drained together by one thread every :attr:`period_s`.
+
+    Zenoh-python runs a subscription's Python callback on a thread of its own, woken for
+    each message: under a flood of junk on the bus (issue 25) every message costs a
+    thread's wake-up and a hand-over of the interpreter lock to it, which the process's
+    main thread pays for too. Here each subscription queues its samples in zenoh's FIFO
+    (no Python, no lock) and one thread takes whatever has queued, in batches:
+    about half the CPU a message (docs/benchmarks.md, "Junk on the bus"), for at most
+    :attr:`period_s` of delay. Nothing is dropped: a full FIFO holds its sender back,
+    as a slow callback does. Data keys keep zenoh's callbacks: a frame does not wait.
+    """
+
+    CAPACITY = 10_000    # samples a subscription holds between two drains
+    BATCH = 1_000        # at most this many a subscription per pass (the others are not starved)
+
+    def __init__(self, session: zenoh.Session, period_s: float = 0.002, name: str = "inlet"):
+        self.session = session
+        self.period_s = period_s
+        self._subs: list = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drain, name=name, daemon=True)
+        self._log = logging.getLogger(f"smartroom.{name}")
+
+    def subscribe(self, key: str, handler):
+        """Hand every sample of ``key`` to ``handler`` (on the inlet's thread); the subscriber."""
+        sub = self.session.declare_subscriber(key, zenoh.handlers.FifoChannel(self.CAPACITY))
+        self._subs = [*self._subs, (sub, handler)]   # a new list: the thread iterates the one it took
+        if not self._thread.is_alive() and not self._stop.is_set():
+            self._thread.start()
+        return sub
+
+    def unsubscribe(self, sub) -> None:
+        self._subs = [(s, h) for s, h in self._subs if s is not sub]
+        try:
+            sub.undeclare()
+        except Exception:  # noqa: BLE001 - closing anyway
+            pass
+
+    def _drain(self) -> None:
+        while not self._stop.is_set():
+            if not self.drain_once():
+                time.sleep(self.period_s)   # cheaper than an event's wait: this runs 100s of times a second
+
+    def drain_once(self) -> int:
+        """Hand over what has queued; how many samples."""
+        n = 0
+        for sub, handler in self._subs:
+            for _ in range(self.BATCH):
+                try:
+                    sample = sub.try_recv()
+                except Exception:  # noqa: BLE001 - undeclared while closing
+                    break
+                if sample is None:
+                    break
+                n += 1
+                try:
+                    handler(sample)
+                except Exception:  # noqa: BLE001 - a handler's bug must not stop the others
+                    self._log.exception("handling a message on %s", sample.key_expr)
+        return n
+
+    def close(self, drain: bool = False) -> None:
+        """Stop the thread, hand over what has queued where ``drain``, and undeclare."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        if drain:
+            self.drain_once()
+        subs, self._subs = self._subs, []
+        for sub, _ in subs:
+            try:
+                sub.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass

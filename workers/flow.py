@@ -240,7 +240,7 @@ class SourceFlow:
         """Rules 2-6 for frame ``index``; the seconds waited."""
         w = self.worker
         if self._sub is None:
-            self._sub = w.session.declare_subscriber(w.keys.ack(), self._on_ack)
+            self._sub = w.inlet.subscribe(w.keys.ack(), self._on_ack)   # a few ms late at most
         return self.control.wait(index, lambda: set(w.alive), lambda: w.stopping)
 
     def _on_ack(self, sample) -> None:
@@ -265,8 +265,5 @@ class SourceFlow:
 
     def close(self) -> None:
         if self._sub is not None:
-            try:
-                self._sub.undeclare()
-            except Exception:  # noqa: BLE001 - closing anyway
-                pass
+            self.worker.inlet.unsubscribe(self._sub)
             self._sub = None
