@@ -16,6 +16,11 @@ signals it and restarts it as a child of its own, and the worker's watch for its
 (``os.getppid()``) is unchanged. ``SMARTROOM_SPAWN=exec`` starts fresh processes instead,
 as does any platform without ``prctl`` (Linux only) or a server that fails.
 
+After loading, the server freezes what it has loaded out of the garbage collector
+(``gc.freeze``): a worker's collections no longer write to those objects' pages, so they
+stay shared with the server instead of being copied into each worker (about 6 MB less
+private memory summed over a run's eight workers 9 s in, more the longer it runs).
+
 The server opens no zenoh session and starts no thread of its own (a session's runtime
 threads would not survive a fork), and calls nothing of OpenCV's or numba's that starts a
 thread pool; its only other threads are the idle pools of the three OpenBLAS libraries
@@ -32,6 +37,7 @@ input closes.
 from __future__ import annotations
 
 import ctypes
+import gc
 import json
 import os
 import signal
@@ -181,6 +187,8 @@ def serve(reply_fd: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the launcher's to handle
     reply = os.fdopen(reply_fd, "w", buffering=1)
     preload()
+    gc.collect()
+    gc.freeze()   # what was loaded stays shared: a worker's collections no longer write to its pages
     reply.write(json.dumps({"ready": os.getpid()}) + "\n")
     for line in sys.stdin:
         try:
