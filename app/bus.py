@@ -235,7 +235,7 @@ class Inlet:
         """Hand every sample of ``key`` to ``handler`` (on the inlet's thread); the subscriber."""
         sub = self.session.declare_subscriber(key, zenoh.handlers.FifoChannel(self.CAPACITY))
         self._subs = [*self._subs, (sub, handler)]   # a new list: the thread iterates the one it took
-        if not self._thread.is_alive() and not self._stop.is_set():
+        if self._thread.ident is None and not self._stop.is_set():   # started with the first key
             self._thread.start()
         return sub
 
