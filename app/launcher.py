@@ -328,7 +328,7 @@ class Launcher:
             raise
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
-        inlet = Inlet(session, period_s=0.005, name="launcher-inlet")   # batches: junk costs less
+        inlet = Inlet(session, period_s=0.005, name="launcher-inlet")   # control keys, taken in batches
         for key in (keys.stats(), keys.eos(), keys.heartbeat()):
             inlet.subscribe(key, self._on_control)
         subs = []

@@ -792,7 +792,7 @@ class Worker(Restarts):
             # (junk on another worker's key never reaches it); a stage that takes the stats
             # takes every worker's (an end carries the final figures), on one subscription
             # each for ends and stats, and tells a name outside the layout from the key;
-            # all of them through the inlet (a few ms late, a fraction of the CPU of a flood)
+            # all of them through the inlet (a few ms late; a thread's wake-up per batch, not per message)
             if "stats" in self.CONSUMES:
                 ends = [self.keys.eos(), self.keys.stats()]
             else:
