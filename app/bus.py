@@ -201,6 +201,15 @@ class Publisher:
         self._pub.undeclare()
 
 
+def undeclare_quietly(entity) -> None:
+    """Undeclare a subscriber, token or publisher that is being closed anyway (one the
+    session already dropped raises; that changes nothing)."""
+    try:
+        entity.undeclare()
+    except Exception:  # noqa: BLE001 - closing anyway
+        pass
+
+
 def decode_sample(sample) -> Message:
     """Decode a zenoh sample's payload (raises :class:`MessageError`)."""
     return decode(sample.payload.to_bytes())
@@ -244,10 +253,7 @@ class Inlet:
 
     def unsubscribe(self, sub) -> None:
         self._subs = [(s, h) for s, h in self._subs if s is not sub]
-        try:
-            sub.undeclare()
-        except Exception:  # noqa: BLE001 - closing anyway
-            pass
+        undeclare_quietly(sub)
 
     def _drain(self) -> None:
         while not self._stop.is_set():
@@ -281,7 +287,4 @@ class Inlet:
             self.drain_once()
         subs, self._subs = self._subs, []
         for sub, _ in subs:
-            try:
-                sub.undeclare()
-            except Exception:  # noqa: BLE001 - closing anyway
-                pass
+            undeclare_quietly(sub)

@@ -42,7 +42,7 @@ from typing import ClassVar
 
 from app.admission import FrameWindow, Rejections, epoch_outside_run
 from app.frame_shares import FrameOrder, frame_share, owns, stage_shares
-from app.bus import Inlet, Keys, Publisher, decode_sample, open_session
+from app.bus import Inlet, Keys, Publisher, decode_sample, open_session, undeclare_quietly
 from app.compiles import CompileClock
 from app.files import write_json
 from app.layout import Layout, WorkerSpec   # the layout's types, not its loader (which imports the workers)
@@ -858,10 +858,7 @@ class Worker(Restarts):
                     if self.inlet is not None:
                         self.inlet.close()
                     for s in self._subs:
-                        try:
-                            s.undeclare()
-                        except Exception:  # noqa: BLE001 - closing anyway
-                            pass
+                        undeclare_quietly(s)
                     self._leave()
                     self.session.close()
 
