@@ -38,6 +38,67 @@ def test_the_generalised_distance_sums_every_pair_of_views():
     assert np.isnan(generalised_epipolar_distance(pts[:1], [0], F))
 
 
+def _costs_by_the_equations(X, cams, det_views, F, rho, explain, supported):
+    """Eqs. 6.5-6.9 (``cost="both_ways"``, nearest picks) written out plainly, particle by
+    particle: nearest detection within rho per view, the generalised distance's mean pair,
+    the reprojection term, then every supported detection's distance to its view's nearest
+    projection."""
+    from app.markers.epipolar import ideal_project
+    out = []
+    flat = np.concatenate(det_views)
+    view_of = np.repeat(np.arange(len(cams)), [len(d) for d in det_views])
+    for landmarks in X:
+        proj = [ideal_project(cam, landmarks) for cam in cams]          # (M, 2) per view
+        total = 0.0
+        for m in range(len(landmarks)):
+            picks, views, reproj = [], [], 0.0
+            for n, d in enumerate(det_views):
+                if not len(d):
+                    continue
+                d2 = np.sum((d - proj[n][m]) ** 2, axis=1)
+                if d2.min() <= rho * rho:
+                    picks.append(d[np.argmin(d2)])
+                    views.append(n)
+                    reproj += d2.min()
+            if len(picks) < 2:
+                total += 1.0
+                continue
+            pairs = len(picks) * (len(picks) - 1) / 2
+            s2 = generalised_epipolar_distance(np.array(picks), views, F) ** 2 / pairs + reproj / len(picks)
+            total += min(1.0, np.sqrt(s2) / rho)
+        unexplained = [min(rho, np.min(np.linalg.norm(proj[view_of[q]] - flat[q], axis=1))) / rho
+                       for q in np.flatnonzero(supported)]
+        out.append(total / len(landmarks) + explain * np.mean(unexplained))
+    return np.array(out)
+
+
+def test_the_marker_costs_are_those_of_the_equations_written_out():
+    """The likelihood's kernel (candidate detections per landmark from the box of all the
+    particles' projections, the frame's pair distances tabled once) gives the costs of the
+    equations written out plainly, for particles on the markers, near them and far off,
+    among false detections."""
+    from app.markers.likelihood import MarkerScorer
+    from app.pose.model import BodyModel, neutral_state
+    from app.simulation.simulator import Simulator
+
+    cams = Simulator("walk1", fps=25, seconds=0.2, width=640, height=480).calibration.cameras
+    rng = np.random.default_rng(3)
+    truth = _standing(3.0, 2.6)
+    dets, _ = synthetic_detections(truth[None], [1.75], cams, DetectorModel(0.9, 20, 4.0), rng)
+    scorer = MarkerScorer(cams, 1.75, cost="both_ways", explain=3.0, picks="nearest")
+    scorer.set_detections(dets)
+    assert scorer.supported.sum() >= 20
+    states = neutral_state(1.75, (3.0, 2.6, None), yaw=0.0) + rng.normal(0.0, 0.02, (40, 27))
+    states[:5, :2] += 2.0                                       # far from every marker
+    X = np.array([BodyModel(1.75).joints(s) for s in states])
+    ideal = [scorer.det[a:b] for a, b in zip(scorer.start[:-1], scorer.start[1:])]
+    want = _costs_by_the_equations(X, cams, ideal, scorer.F, scorer.rho, scorer.explain, scorer.supported)
+    got = scorer.costs(states)
+    print("costs:", np.round(got[:8], 4), "far:", np.round(got[:5], 3))
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-12)
+    assert got[5:].max() < got[:5].min() - 1.0      # on the markers far cheaper than off them
+
+
 def _standing(x=0.0, y=0.0):
     from app.pose.model import BodyModel, neutral_state
     return BodyModel(1.75).joints(neutral_state(1.75, (x, y, None), yaw=0.0))

@@ -45,7 +45,7 @@ from numba import njit
 from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
 from app.pose.model import joints_subset, segments_needed
 
-__all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "exclusive_picks", "supported_detections", "triangulated_markers"]
+__all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "pair_distances", "tabled_costs", "exclusive_picks", "supported_detections", "triangulated_markers"]
 
 COSTS = ("thesis", "reprojection", "both_ways")
 PICKS = ("nearest", "exclusive")
@@ -72,44 +72,129 @@ def exclusive_picks(pick, pick_d2):
 
 
 @njit(cache=True, nogil=True)
+def pair_distances(det, start, F):
+    """The two halves of Eq. 6.6 for every pair of detections of different views:
+    ``E1[qa, qb]`` the squared distance of detection qb to the epipolar line of qa in its
+    view, ``E2[qa, qb]`` of qa to that of qb, for qa of a lower view than qb (zero
+    elsewhere). A frame's detections are scored by every particle; these are the same for
+    all of them."""
+    Q = det.shape[0]
+    C = start.shape[0] - 1
+    E1 = np.zeros((Q, Q))
+    E2 = np.zeros((Q, Q))
+    for va in range(C):
+        for vb in range(va + 1, C):
+            f = F[va, vb]
+            for qa in range(start[va], start[va + 1]):
+                xa = det[qa, 0]
+                ya = det[qa, 1]
+                # L(t_a, b) = F_ab t_a in view b; L(t_b, a) = F_ab^T t_b in view a (Eq. 6.6)
+                la = f[0, 0] * xa + f[0, 1] * ya + f[0, 2]
+                lb = f[1, 0] * xa + f[1, 1] * ya + f[1, 2]
+                lc = f[2, 0] * xa + f[2, 1] * ya + f[2, 2]
+                n1 = la * la + lb * lb
+                for qb in range(start[vb], start[vb + 1]):
+                    xb = det[qb, 0]
+                    yb = det[qb, 1]
+                    e1 = la * xb + lb * yb + lc
+                    ma = f[0, 0] * xb + f[1, 0] * yb + f[2, 0]
+                    mb = f[0, 1] * xb + f[1, 1] * yb + f[2, 1]
+                    mc = f[0, 2] * xb + f[1, 2] * yb + f[2, 2]
+                    e2 = ma * xa + mb * ya + mc
+                    n2 = ma * ma + mb * mb
+                    if n1 > 0.0:
+                        E1[qa, qb] = e1 * e1 / n1
+                    if n2 > 0.0:
+                        E2[qa, qb] = e2 * e2 / n2
+    return E1, E2
+
+
+@njit(cache=True, nogil=True)
 def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explain, exclusive, out):
     """``out[p]`` = C of Eq. 6.9 for the landmarks ``X`` (P, M, 3) of P particles, plus
     ``explain`` times the mean unexplained share of the supported detections. With
     ``exclusive`` a detection picked by several landmarks of one view stays the pick of
     the landmark projecting nearest to it only (the others have no detection there)."""
+    E1, E2 = pair_distances(det, start, F)
+    tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, explain, exclusive, out)
+
+
+@njit(cache=True, nogil=True)
+def tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, explain, exclusive, out):
+    """:func:`marker_costs` with the frame's :func:`pair_distances` given.
+
+    Every particle's landmarks are projected first; a detection farther than ``rho`` from
+    the box of all the particles' projections of a landmark in a view can be no
+    particle's pick for that landmark nor explained by it, so each landmark searches its
+    candidates only (the same picks and costs, to the bit, as searching them all)."""
     P, M = X.shape[0], X.shape[1]
     C = K.shape[0]
-    tx = np.empty(C)
-    ty = np.empty(C)
-    views = np.empty(C, np.int64)
-    proj = np.full((M, C, 2), 1e9)
+    Q = det.shape[0]
+    r2 = rho * rho
+    U = np.empty((P, M, C))
+    V = np.empty((P, M, C))
+    seen = np.empty((P, M, C), np.bool_)
+    box = np.empty((M, C, 4))
+    box[:, :, 0] = np.inf
+    box[:, :, 1] = -np.inf
+    box[:, :, 2] = np.inf
+    box[:, :, 3] = -np.inf
+    for p in range(P):
+        for m in range(M):
+            for n in range(C):
+                xc = R[n, 0, 0] * X[p, m, 0] + R[n, 0, 1] * X[p, m, 1] + R[n, 0, 2] * X[p, m, 2] + t[n, 0]
+                yc = R[n, 1, 0] * X[p, m, 0] + R[n, 1, 1] * X[p, m, 1] + R[n, 1, 2] * X[p, m, 2] + t[n, 1]
+                zc = R[n, 2, 0] * X[p, m, 0] + R[n, 2, 1] * X[p, m, 1] + R[n, 2, 2] * X[p, m, 2] + t[n, 2]
+                seen[p, m, n] = zc > 1e-6
+                if not seen[p, m, n]:
+                    continue
+                u = K[n, 0, 0] * xc / zc + K[n, 0, 1] * yc / zc + K[n, 0, 2]
+                v = K[n, 1, 1] * yc / zc + K[n, 1, 2]
+                U[p, m, n] = u
+                V[p, m, n] = v
+                box[m, n, 0] = min(box[m, n, 0], u)
+                box[m, n, 1] = max(box[m, n, 1], u)
+                box[m, n, 2] = min(box[m, n, 2], v)
+                box[m, n, 3] = max(box[m, n, 3], v)
+    reach = rho * (1.0 + 1e-9)                # rho, and no rounding of d2 left out
+    first = np.zeros(M * C + 1, np.int64)    # candidates of (m, n): cand[first[m C + n]:first[m C + n + 1]]
+    cand = np.empty(max(M * Q, 1), np.int64)
+    k = 0
+    for m in range(M):
+        for n in range(C):
+            for q in range(start[n], start[n + 1]):
+                if (box[m, n, 0] - reach <= det[q, 0] <= box[m, n, 1] + reach
+                        and box[m, n, 2] - reach <= det[q, 1] <= box[m, n, 3] + reach):
+                    cand[k] = q
+                    k += 1
+            first[m * C + n + 1] = k
+    qs = np.empty(C, np.int64)
     pick = np.empty((M, C), np.int64)
     pick_d2 = np.empty((M, C))
+    near = np.empty(Q)                       # per detection: the squared distance of the nearest projection
     n_supported = 0
-    for q in range(det.shape[0]):
+    for q in range(Q):
         if supported[q]:
             n_supported += 1
     for p in range(P):
         total = 0.0
+        near[:] = r2
         for m in range(M):
             for n in range(C):
                 pick[m, n] = -1
-                xc = R[n, 0, 0] * X[p, m, 0] + R[n, 0, 1] * X[p, m, 1] + R[n, 0, 2] * X[p, m, 2] + t[n, 0]
-                yc = R[n, 1, 0] * X[p, m, 0] + R[n, 1, 1] * X[p, m, 1] + R[n, 1, 2] * X[p, m, 2] + t[n, 1]
-                zc = R[n, 2, 0] * X[p, m, 0] + R[n, 2, 1] * X[p, m, 1] + R[n, 2, 2] * X[p, m, 2] + t[n, 2]
-                if zc <= 1e-6:
-                    proj[m, n, 0] = 1e9
+                if not seen[p, m, n]:
                     continue
-                u = K[n, 0, 0] * xc / zc + K[n, 0, 1] * yc / zc + K[n, 0, 2]
-                v = K[n, 1, 1] * yc / zc + K[n, 1, 2]
-                proj[m, n, 0] = u
-                proj[m, n, 1] = v
-                best = rho * rho
+                u = U[p, m, n]
+                v = V[p, m, n]
+                best = r2
                 bi = -1
-                for q in range(start[n], start[n + 1]):
+                for i in range(first[m * C + n], first[m * C + n + 1]):
+                    q = cand[i]
                     du = det[q, 0] - u
                     dv = det[q, 1] - v
                     d2 = du * du + dv * dv
+                    if d2 < near[q]:
+                        near[q] = d2
                     if d2 <= best:
                         best = d2
                         bi = q
@@ -123,9 +208,7 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
             for n in range(C):
                 bi = pick[m, n]
                 if bi >= 0:
-                    tx[k] = det[bi, 0]
-                    ty[k] = det[bi, 1]
-                    views[k] = n
+                    qs[k] = bi
                     reproj += pick_d2[m, n]
                     k += 1
             if k < 2:
@@ -133,24 +216,10 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
                 continue
             d2 = 0.0
             pairs = 0
-            for a in range(k - 1):
+            for a in range(k - 1):      # qs ascend with their views: E1, E2 hold each pair
                 for b in range(a + 1, k):
-                    f = F[views[a], views[b]]
-                    # L(t_a, b) = F_ab t_a in view b; L(t_b, a) = F_ab^T t_b in view a (Eq. 6.6)
-                    la = f[0, 0] * tx[a] + f[0, 1] * ty[a] + f[0, 2]
-                    lb = f[1, 0] * tx[a] + f[1, 1] * ty[a] + f[1, 2]
-                    lc = f[2, 0] * tx[a] + f[2, 1] * ty[a] + f[2, 2]
-                    e1 = la * tx[b] + lb * ty[b] + lc
-                    n1 = la * la + lb * lb
-                    ma = f[0, 0] * tx[b] + f[1, 0] * ty[b] + f[2, 0]
-                    mb = f[0, 1] * tx[b] + f[1, 1] * ty[b] + f[2, 1]
-                    mc = f[0, 2] * tx[b] + f[1, 2] * ty[b] + f[2, 2]
-                    e2 = ma * tx[a] + mb * ty[a] + mc
-                    n2 = ma * ma + mb * mb
-                    if n1 > 0.0:
-                        d2 += e1 * e1 / n1
-                    if n2 > 0.0:
-                        d2 += e2 * e2 / n2
+                    d2 += E1[qs[a], qs[b]]
+                    d2 += E2[qs[a], qs[b]]
                     pairs += 1
             s2 = d2 / pairs
             if reprojection:
@@ -161,18 +230,9 @@ def marker_costs(X, K, R, t, F, det, start, supported, rho, reprojection, explai
         if explain > 0 and n_supported > 0:
             # every supported detection's distance to the nearest landmark projection of its view
             unexplained = 0.0
-            for n in range(C):
-                for q in range(start[n], start[n + 1]):
-                    if not supported[q]:
-                        continue
-                    best = rho * rho
-                    for m in range(M):
-                        du = det[q, 0] - proj[m, n, 0]
-                        dv = det[q, 1] - proj[m, n, 1]
-                        d2 = du * du + dv * dv
-                        if d2 < best:
-                            best = d2
-                    unexplained += np.sqrt(best) / rho
+            for q in range(Q):
+                if supported[q]:
+                    unexplained += np.sqrt(near[q]) / rho
             cost += explain * unexplained / n_supported
         out[p] = cost
 
@@ -274,6 +334,7 @@ class MarkerScorer:
         self.det = np.zeros((0, 2))
         self.start = np.zeros(len(self.cameras) + 1, np.int64)
         self.supported = np.zeros(0, np.bool_)
+        self.E1 = self.E2 = np.zeros((0, 0))
         self.evaluations = 0
         self.floor = 0.0                     # m: the lower ankle's prior (log_weights); 0 = none (the thesis)
         self.ankles_need = segments_needed(_ANKLES)
@@ -291,11 +352,12 @@ class MarkerScorer:
             self.pair_points = np.zeros((0, 3))
         if self.cost != "both_ways":
             self.supported = np.zeros(len(self.det), np.bool_)
+        self.E1, self.E2 = pair_distances(self.det, self.start, self.F)
 
     def costs(self, states: np.ndarray) -> np.ndarray:
         X = joints_subset(states, self.height, self.joints, self.need)
         out = np.empty(len(states))
-        marker_costs(X, self.K, self.R, self.t, self.F, self.det, self.start, self.supported, self.rho,
+        tabled_costs(X, self.K, self.R, self.t, self.E1, self.E2, self.det, self.start, self.supported, self.rho,
                      self.cost != "thesis", self.explain if self.cost == "both_ways" else 0.0, self.exclusive, out)
         self.evaluations += len(states)
         return out
