@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.markers.epipolar import fundamentals, ideal_pixels, ideal_project, symmetric_epipolar_distance
+from app.markers.epipolar import fundamentals, ideal_pixels
 from app.pose.model import joints_subset, segments_needed
 
 __all__ = ["MarkerScorer", "COSTS", "PICKS", "marker_costs", "pair_distances", "tabled_costs", "exclusive_picks", "supported_detections", "triangulated_markers"]
@@ -237,22 +237,6 @@ def tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, e
         out[p] = cost
 
 
-def _triangulate(cam_a, cam_b, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """Midpoints (N, 3) of the closest points of the rays through ideal pixels ``pa``, ``pb``."""
-    def rays(cam, p):
-        d = np.concatenate([(p - cam.K[:2, 2]) / np.diag(cam.K)[:2], np.ones((len(p), 1))], axis=1) @ cam.R
-        return d / np.linalg.norm(d, axis=1, keepdims=True)
-    oa, ob = cam_a.centre, cam_b.centre
-    da, db = rays(cam_a, pa), rays(cam_b, pb)
-    w = oa - ob
-    b = np.sum(da * db, axis=1)
-    d, e = da @ w, db @ w
-    denom = np.maximum(1.0 - b * b, 1e-9)
-    s = (b * e - d) / denom
-    t = (e - b * d) / denom
-    return 0.5 * (oa + s[:, None] * da + ob + t[:, None] * db)
-
-
 def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which detections (flat, view by view) are a marker seen from several views: with
     three views or more, one detection of another view lies within ``tol`` of its epipolar
@@ -260,38 +244,111 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
     third view (a false detection rarely has both); with two views, the first test alone.
     Also the 3D points (K, 3) the supported pairs triangulate (marker candidates), and
     those (K2, 3) of every consistent pair (a marker two views see, or a chance match)."""
-    n_views = len(ideal)
-    out = [np.zeros(len(d), bool) for d in ideal]
-    points, pairs = [], []
-    for a in range(n_views):
-        for b in range(a + 1, n_views):
-            if not len(ideal[a]) or not len(ideal[b]):
-                continue
-            d = symmetric_epipolar_distance(ideal[a][:, None], ideal[b][None], F[a, b])   # (Qa, Qb)
-            qa, qb = np.nonzero(d < tol)
-            if not len(qa):
-                continue
-            X = _triangulate(cameras[a], cameras[b], ideal[a][qa], ideal[b][qb])
-            pairs.append(X)
-            if n_views < 3:
-                out[a][qa] = out[b][qb] = True
-                points.append(X)
-                continue
-            seen = np.zeros(len(qa), bool)
-            for c in range(n_views):
-                if c in (a, b) or not len(ideal[c]):
-                    continue
-                pc = ideal_project(cameras[c], X)
-                near = np.linalg.norm(pc[:, None] - ideal[c][None], axis=2)
-                hit = np.min(near, axis=1) < tol
-                out[c][np.argmin(near, axis=1)[hit]] = True
-                seen |= hit
-            out[a][qa[seen]] = out[b][qb[seen]] = True
-            points.append(X[seen])
-    flags = np.concatenate(out) if out else np.zeros(0, bool)
-    def stack(parts):
-        return np.concatenate(parts) if parts else np.zeros((0, 3))
-    return flags, stack(points), stack(pairs)
+    start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
+    det = np.ascontiguousarray(np.concatenate([np.asarray(d, float).reshape(-1, 2) for d in ideal])
+                               if len(ideal) else np.zeros((0, 2)))
+    K = np.array([c.K for c in cameras], dtype=np.float64).reshape(-1, 3, 3)
+    R = np.array([c.R for c in cameras], dtype=np.float64).reshape(-1, 3, 3)
+    t = np.array([c.t for c in cameras], dtype=np.float64).reshape(-1, 3)
+    centres = np.array([c.centre for c in cameras], dtype=np.float64).reshape(-1, 3)
+    return _supported(det, start, np.ascontiguousarray(F, dtype=np.float64), K, R, t, centres, float(tol))
+
+
+@njit(cache=True, nogil=True)
+def _ray(K, R, u, v, out):
+    """The unit direction (world) of the ray through ideal pixel (u, v) (skew ignored)."""
+    x = (u - K[0, 2]) / K[0, 0]
+    y = (v - K[1, 2]) / K[1, 1]
+    for i in range(3):
+        out[i] = x * R[0, i] + y * R[1, i] + R[2, i]
+    norm = np.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
+    for i in range(3):
+        out[i] /= norm
+
+
+@njit(cache=True, nogil=True)
+def _supported(det, start, F, K, R, t, centres, tol):
+    """:func:`supported_detections` over detections stacked view by view (``start``)."""
+    C = start.shape[0] - 1
+    Q = det.shape[0]
+    flags = np.zeros(Q, np.bool_)
+    cap = 0
+    for a in range(C):
+        for b in range(a + 1, C):
+            cap += (start[a + 1] - start[a]) * (start[b + 1] - start[b])
+    points = np.empty((cap, 3))
+    pairs = np.empty((cap, 3))
+    n_points = 0
+    n_pairs = 0
+    da = np.empty(3)
+    db = np.empty(3)
+    X = np.empty(3)
+    for a in range(C):
+        for b in range(a + 1, C):
+            f = F[a, b]
+            oa = centres[a]
+            ob = centres[b]
+            for qa in range(start[a], start[a + 1]):
+                xa = det[qa, 0]
+                ya = det[qa, 1]
+                la = f[0, 0] * xa + f[0, 1] * ya + f[0, 2]        # L(p_a, b) = F_ab p_a (Eq. 6.6)
+                lb = f[1, 0] * xa + f[1, 1] * ya + f[1, 2]
+                lc = f[2, 0] * xa + f[2, 1] * ya + f[2, 2]
+                for qb in range(start[b], start[b + 1]):
+                    xb = det[qb, 0]
+                    yb = det[qb, 1]
+                    ma = f[0, 0] * xb + f[1, 0] * yb + f[2, 0]    # L(p_b, a) = F_ab^T p_b
+                    mb = f[0, 1] * xb + f[1, 1] * yb + f[2, 1]
+                    mc = f[0, 2] * xb + f[1, 2] * yb + f[2, 2]
+                    d1 = abs(la * xb + lb * yb + lc) / np.hypot(la, lb)
+                    d2 = abs(ma * xa + mb * ya + mc) / np.hypot(ma, mb)
+                    if not np.hypot(d1, d2) < tol:
+                        continue
+                    # the midpoint of the rays' closest points
+                    _ray(K[a], R[a], xa, ya, da)
+                    _ray(K[b], R[b], xb, yb, db)
+                    w0, w1, w2 = oa[0] - ob[0], oa[1] - ob[1], oa[2] - ob[2]
+                    cosab = da[0] * db[0] + da[1] * db[1] + da[2] * db[2]
+                    dw = da[0] * w0 + da[1] * w1 + da[2] * w2
+                    ew = db[0] * w0 + db[1] * w1 + db[2] * w2
+                    denom = max(1.0 - cosab * cosab, 1e-9)
+                    sa = (cosab * ew - dw) / denom
+                    sb = (ew - cosab * dw) / denom
+                    for i in range(3):
+                        X[i] = 0.5 * (oa[i] + sa * da[i] + ob[i] + sb * db[i])
+                    pairs[n_pairs] = X
+                    n_pairs += 1
+                    if C < 3:
+                        flags[qa] = flags[qb] = True
+                        points[n_points] = X
+                        n_points += 1
+                        continue
+                    seen = False
+                    for c in range(C):
+                        if c == a or c == b or start[c] == start[c + 1]:
+                            continue
+                        zc = R[c, 2, 0] * X[0] + R[c, 2, 1] * X[1] + R[c, 2, 2] * X[2] + t[c, 2]
+                        if not zc > 1e-9:
+                            continue
+                        xc = (R[c, 0, 0] * X[0] + R[c, 0, 1] * X[1] + R[c, 0, 2] * X[2] + t[c, 0]) / zc
+                        yc = (R[c, 1, 0] * X[0] + R[c, 1, 1] * X[1] + R[c, 1, 2] * X[2] + t[c, 1]) / zc
+                        u = K[c, 0, 0] * xc + K[c, 0, 1] * yc + K[c, 0, 2]
+                        v = K[c, 1, 1] * yc + K[c, 1, 2]
+                        best = np.inf
+                        bq = -1
+                        for q in range(start[c], start[c + 1]):
+                            dq = np.hypot(u - det[q, 0], v - det[q, 1])
+                            if dq < best:
+                                best = dq
+                                bq = q
+                        if best < tol:
+                            flags[bq] = True
+                            seen = True
+                    if seen:
+                        flags[qa] = flags[qb] = True
+                        points[n_points] = X
+                        n_points += 1
+    return flags, points[:n_points].copy(), pairs[:n_pairs].copy()
 
 
 def triangulated_markers(cameras, detections, F=None, tol: float = 6.0, radius: float = 0.03) -> np.ndarray:
@@ -337,7 +394,6 @@ class MarkerScorer:
         self.E1 = self.E2 = np.zeros((0, 0))
         self.evaluations = 0
         self.floor = 0.0                     # m: the lower ankle's prior (log_weights); 0 = none (the thesis)
-        self.ankles_need = segments_needed(_ANKLES)
 
     def set_detections(self, detections) -> None:
         """One frame's detections: per camera (Q_n, 2) observed pixels."""
@@ -355,21 +411,24 @@ class MarkerScorer:
         self.E1, self.E2 = pair_distances(self.det, self.start, self.F)
 
     def costs(self, states: np.ndarray) -> np.ndarray:
-        X = joints_subset(states, self.height, self.joints, self.need)
-        out = np.empty(len(states))
+        return self._costs(joints_subset(states, self.height, self.joints, self.need))
+
+    def _costs(self, X: np.ndarray) -> np.ndarray:
+        """The costs of the particles whose landmarks are ``X`` (P, 15, 3)."""
+        out = np.empty(len(X))
         tabled_costs(X, self.K, self.R, self.t, self.E1, self.E2, self.det, self.start, self.supported, self.rho,
                      self.cost != "thesis", self.explain if self.cost == "both_ways" else 0.0, self.exclusive, out)
-        self.evaluations += len(states)
+        self.evaluations += len(X)
         return out
 
     def log_weights(self, states: np.ndarray, active=None) -> np.ndarray:
         """Eq. 6.10: ``log w = -C^2 / (2 sigma^2)``; with ``floor`` (m, ours) also
         ``-(dz / floor)^2 / 2``, ``dz`` the lower ankle's height above its standing height
         (markers the cameras do not see, legs behind furniture, leave the legs free)."""
-        c = self.costs(states)
+        X = joints_subset(states, self.height, self.joints, self.need)
+        c = self._costs(X)
         out = -(c * c) / (2.0 * self.sigma * self.sigma)
         if self.floor > 0:
-            ankles = joints_subset(states, self.height, _ANKLES, self.ankles_need)[:, :, 2]
-            dz = np.maximum(ankles.min(axis=1) - ANKLE_HEIGHT * self.height, 0.0)
+            dz = np.maximum(X[:, _ANKLES, 2].min(axis=1) - ANKLE_HEIGHT * self.height, 0.0)
             out -= 0.5 * (dz / self.floor) ** 2
         return out

@@ -17,9 +17,11 @@ farther in a frame than its diffusion reaches (a raised arm's wrist: 150 mm a fr
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from app.pose.detections import Detections, Importance
-from app.pose.model import DOF, LIMITS_HI, LIMITS_LO, joints_subset, segments_needed
+from app.pose.model import (AVERAGE, DOF, DOF_AXIS, DOF_SEGMENT, JOINT_SEG, LIMITS_HI, LIMITS_LO, SEG_PARENT,
+                            fk_joints_subset_batch, joints_subset, segments_needed)
 
 __all__ = ["agreed_points", "LimbProposals"]
 
@@ -72,22 +74,48 @@ def leg_ik(states: np.ndarray, side: str, targets: np.ndarray, height: float) ->
     cos_k = (thigh * thigh + shin * shin - d * d) / (2 * thigh * shin)
     knee = dofs[2]
     S[:, knee] = np.clip(np.pi - np.arccos(np.clip(cos_k, -1.0, 1.0)), LIMITS_LO[knee], LIMITS_HI[knee])
-    n = len(S)
-    probes = np.empty((len(dofs) + 1, n, S.shape[1]))
-    for _ in range(IK_STEPS):
-        probes[:] = S                         # the rows and their finite-difference copies:
-        for k, d in enumerate(dofs):          # one kinematics call for all of them
-            probes[k + 1, :, d] += eps
-        ankles = joints_subset(probes.reshape(-1, S.shape[1]), height, joint, need)[:, 0].reshape(len(dofs) + 1, n, 3)
-        a = ankles[0]
-        r = targets - a
-        J = np.empty((n, 3, len(dofs)))
-        for k in range(len(dofs)):
-            J[:, :, k] = (ankles[k + 1] - a) / eps
-        JtJ = np.einsum("nik,nil->nkl", J, J) + IK_DAMPING * np.eye(len(dofs))
-        step = np.linalg.solve(JtJ, np.einsum("nik,ni->nk", J, r)[..., None])[..., 0]
-        S[:, dofs] = np.clip(S[:, dofs] + step, LIMITS_LO[dofs], LIMITS_HI[dofs])
+    _leg_steps(S, np.ascontiguousarray(targets, dtype=np.float64), dofs, joint, need, float(height), SEG_PARENT,
+               AVERAGE.seg_offset, DOF_SEGMENT, DOF_AXIS, JOINT_SEG, AVERAGE.joint_local, LIMITS_LO[dofs],
+               LIMITS_HI[dofs], IK_STEPS, eps, IK_DAMPING)
     return S
+
+
+@njit(cache=True, nogil=True)
+def _leg_steps(S, targets, dofs, joint, need, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg,
+               joint_local, lo, hi, steps, eps, damping):
+    """:func:`leg_ik`'s damped Gauss-Newton steps, row by row in place: the ankle's
+    Jacobian over ``dofs`` by forward differences of ``eps``, each step solved from the
+    normal equations (``damping`` on the diagonal) and clipped to ``lo``, ``hi``."""
+    D = dofs.shape[0]
+    probes = np.empty((D + 1, S.shape[1]))
+    ankles = np.empty((D + 1, 1, 3))
+    J = np.empty((3, D))
+    A = np.empty((D, D))
+    b = np.empty(D)
+    for row in range(S.shape[0]):
+        for _ in range(steps):
+            for k in range(D + 1):
+                probes[k] = S[row]
+            for k in range(D):                 # the row and its finite-difference copies
+                probes[k + 1, dofs[k]] += eps
+            fk_joints_subset_batch(probes, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg,
+                                   joint_local, joint, need, ankles)
+            for k in range(D):
+                for i in range(3):
+                    J[i, k] = (ankles[k + 1, 0, i] - ankles[0, 0, i]) / eps
+            for k in range(D):
+                for l in range(D):
+                    a = 0.0
+                    for i in range(3):
+                        a += J[i, k] * J[i, l]
+                    A[k, l] = a + (damping if k == l else 0.0)
+                r = 0.0
+                for i in range(3):
+                    r += J[i, k] * (targets[row, i] - ankles[0, 0, i])
+                b[k] = r
+            step = np.linalg.solve(A, b)
+            for k in range(D):
+                S[row, dofs[k]] = min(max(S[row, dofs[k]] + step[k], lo[k]), hi[k])
 
 
 class LimbProposals:
