@@ -99,6 +99,26 @@ def test_the_marker_costs_are_those_of_the_equations_written_out():
     assert got[5:].max() < got[:5].min() - 1.0      # on the markers far cheaper than off them
 
 
+def test_exclusive_picks_leave_each_detection_to_its_nearest_landmark_the_first_at_a_tie():
+    """Random picks of 15 landmarks among 6 detections of each of 4 views, distances drawn
+    from few values (ties): a detection stays the pick of the landmark with the smallest
+    distance to it, the first of those at a tie, and every other landmark loses it."""
+    from app.markers.likelihood import exclusive_picks
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        q = rng.integers(-1, 6, size=(15, 4))                   # -1: no detection within rho
+        pick = np.where(q >= 0, q + 6 * np.arange(4)[None], -1)   # detections stacked view by view
+        pick_d2 = rng.integers(0, 4, size=(15, 4)).astype(float)
+        want = np.full_like(pick, -1)
+        for n in range(4):
+            for q in set(pick[:, n][pick[:, n] >= 0]):
+                rows = np.flatnonzero(pick[:, n] == q)
+                want[rows[np.argmin(pick_d2[rows, n])], n] = q
+        got = pick.copy()
+        exclusive_picks(got, pick_d2)
+        assert np.array_equal(got, want)
+
+
 def _standing(x=0.0, y=0.0):
     from app.pose.model import BodyModel, neutral_state
     return BodyModel(1.75).joints(neutral_state(1.75, (x, y, None), yaw=0.0))

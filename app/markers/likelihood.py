@@ -58,17 +58,32 @@ def exclusive_picks(pick, pick_d2):
     """Exclusive picks (ours): where several landmarks of one view picked one detection
     (``pick`` (M, C) detection indices, -1 none; ``pick_d2`` their squared distances), it
     stays the pick of the nearest of them (the first at a tie); the others' become -1."""
+    owner = np.full(max(pick.max() + 1, 1), -1, np.int64)
+    settle_picks(pick, pick_d2, owner)
+
+
+@njit(cache=True, nogil=True)
+def settle_picks(pick, pick_d2, owner):
+    """:func:`exclusive_picks` with ``owner`` (at least one per detection, all -1) given,
+    left all -1 again: each detection's owner is the first landmark that picked it until a
+    later one picks it strictly nearer."""
     M, C = pick.shape
     for n in range(C):
-        for m in range(M - 1):
-            if pick[m, n] < 0:
+        for m in range(M):
+            q = pick[m, n]
+            if q < 0:
                 continue
-            for m2 in range(m + 1, M):
-                if pick[m2, n] == pick[m, n]:
-                    if pick_d2[m2, n] < pick_d2[m, n]:
-                        pick[m, n] = -1
-                        break
-                    pick[m2, n] = -1
+            o = owner[q]
+            if o < 0:
+                owner[q] = m
+            elif pick_d2[m, n] < pick_d2[o, n]:
+                pick[o, n] = -1
+                owner[q] = m
+            else:
+                pick[m, n] = -1
+        for m in range(M):
+            if pick[m, n] >= 0:
+                owner[pick[m, n]] = -1
 
 
 @njit(cache=True, nogil=True)
@@ -172,6 +187,7 @@ def tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, e
     pick = np.empty((M, C), np.int64)
     pick_d2 = np.empty((M, C))
     near = np.empty(Q)                       # per detection: the squared distance of the nearest projection
+    owner = np.full(max(Q, 1), -1, np.int64)
     n_supported = 0
     for q in range(Q):
         if supported[q]:
@@ -201,7 +217,7 @@ def tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, e
                 pick[m, n] = bi
                 pick_d2[m, n] = best
         if exclusive:
-            exclusive_picks(pick, pick_d2)
+            settle_picks(pick, pick_d2, owner)
         for m in range(M):
             k = 0
             reproj = 0.0
