@@ -40,21 +40,78 @@ IK_DAMPING = 1e-3
 
 def agreed_points(points: np.ndarray, radius: float = 0.03) -> np.ndarray:
     """The means (K, 3) of the groups of ``points`` that agree within ``radius``
-    (module docstring)."""
+    (module docstring): the point with the most others within ``radius`` takes them as its
+    group, then the next one of those left, and so on; a point alone makes no group."""
     if len(points) < 2:
         return np.zeros((0, 3))
-    diff = points[:, None] - points[None]
-    close = np.einsum("ijk,ijk->ij", diff, diff) < radius * radius
-    counts = close.sum(axis=1)
-    out, taken = [], np.zeros(len(points), bool)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    first, near = _neighbours(points, float(radius))
+    counts = np.diff(first)
     order = np.argsort(-counts, kind="quicksort")
-    for k in order[counts[order] >= 2]:   # a point alone makes no group
+    return _groups(points, first, near, order[counts[order] >= 2])
+
+
+@njit(cache=True, nogil=True)
+def _neighbours(points, radius):
+    """Each point's neighbours within ``radius`` (itself among them), in index order:
+    ``near[first[i]:first[i + 1]]``; the points sorted along x bound the search."""
+    N = points.shape[0]
+    r2 = radius * radius
+    by_x = np.argsort(points[:, 0])
+    xs = points[by_x, 0]
+    rank = np.empty(N, np.int64)
+    for k in range(N):
+        rank[by_x[k]] = k
+    first = np.zeros(N + 1, np.int64)
+    rows = []
+    for i in range(N):
+        row = []
+        k = rank[i]
+        lo = k
+        while lo > 0 and xs[lo - 1] >= points[i, 0] - radius:
+            lo -= 1
+        hi = k
+        while hi + 1 < N and xs[hi + 1] <= points[i, 0] + radius:
+            hi += 1
+        for s in range(lo, hi + 1):
+            j = by_x[s]
+            dx = points[i, 0] - points[j, 0]
+            dy = points[i, 1] - points[j, 1]
+            dz = points[i, 2] - points[j, 2]
+            if dx * dx + dy * dy + dz * dz < r2:
+                row.append(j)
+        row.sort()
+        rows.append(row)
+        first[i + 1] = first[i] + len(row)
+    near = np.empty(first[N], np.int64)
+    for i in range(N):
+        for k in range(len(rows[i])):
+            near[first[i] + k] = rows[i][k]
+    return first, near
+
+
+@njit(cache=True, nogil=True)
+def _groups(points, first, near, order):
+    """:func:`agreed_points`' groups, taken in ``order``: their means (K, 3)."""
+    taken = np.zeros(points.shape[0], np.bool_)
+    out = np.empty((order.shape[0], 3))
+    K = 0
+    for k in order:
         if taken[k]:
             continue
-        group = close[k] & ~taken
-        taken |= group
-        out.append(points[group].mean(axis=0))
-    return np.array(out) if out else np.zeros((0, 3))
+        g = 0
+        total = np.zeros(3)
+        for s in range(first[k], first[k + 1]):
+            j = near[s]
+            if taken[j]:
+                continue
+            taken[j] = True
+            for i in range(3):
+                total[i] += points[j, i]
+            g += 1
+        out[K] = total / g
+        K += 1
+    return out[:K].copy()
 
 
 def leg_ik(states: np.ndarray, side: str, targets: np.ndarray, height: float) -> np.ndarray:
