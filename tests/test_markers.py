@@ -119,6 +119,24 @@ def test_exclusive_picks_leave_each_detection_to_its_nearest_landmark_the_first_
         assert np.array_equal(got, want)
 
 
+def test_agreeing_candidates_make_one_point_each_and_a_lone_one_none():
+    """Triangulations of two markers from several pairs of views (within 1 cm of each
+    marker, shuffled among 400 far-apart lone points) come out as the two markers'
+    means; the lone points make no group."""
+    from app.markers.proposals import agreed_points
+    rng = np.random.default_rng(5)
+    markers = np.array([[1.0, 2.0, 1.2], [1.1, 2.0, 1.2]])             # 10 cm apart
+    near = [m + rng.uniform(-0.005, 0.005, (6, 3)) for m in markers]
+    lone = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), [0.1]), -1).reshape(-1, 3) * 0.2 + [3, 3, 0]
+    points = np.concatenate(near + [lone])
+    shuffle = rng.permutation(len(points))
+    got = agreed_points(points[shuffle], radius=0.03)
+    assert len(got) == 2
+    got = got[np.argsort(got[:, 0])]
+    assert np.allclose(got[0], near[0].mean(axis=0), atol=0.008)
+    assert np.allclose(got[1], near[1].mean(axis=0), atol=0.008)
+
+
 def _standing(x=0.0, y=0.0):
     from app.pose.model import BodyModel, neutral_state
     return BodyModel(1.75).joints(neutral_state(1.75, (x, y, None), yaw=0.0))
