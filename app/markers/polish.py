@@ -21,9 +21,11 @@ Pure: states, detections and cameras in, a state out; no bus.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from app.markers.likelihood import exclusive_picks
-from app.pose.model import LIMITS_HI, LIMITS_LO, N_DOF, joints_subset, segments_needed
+from app.pose.model import (AVERAGE, DOF_AXIS, DOF_SEGMENT, JOINT_SEG, LIMITS_HI, LIMITS_LO, SEG_PARENT,
+                            fk_joints_subset_batch, joints_subset, segments_needed)
 
 __all__ = ["polish"]
 
@@ -35,40 +37,66 @@ _NEED = segments_needed(_ALL)
 
 def _pairs(X, scorer):
     """Per view, the landmarks with a detection within ``rho`` of their projection and
-    that detection: ``[(view, landmarks (k,), detections (k, 2))]``; with the scorer's
-    exclusive picks, a detection is the pick of one landmark (:func:`exclusive_picks`)."""
-    C = len(scorer.cameras)
-    pick = np.full((len(X), C), -1, np.int64)
-    pick_d2 = np.zeros((len(X), C))
+    that detection, flat: ``views (k,), landmarks (k,), detections (k, 2)`` view by view;
+    with the scorer's exclusive picks, a detection is the pick of one landmark
+    (:func:`exclusive_picks`)."""
+    return _picks(np.ascontiguousarray(X, dtype=np.float64), scorer.K, scorer.R, scorer.t, scorer.det, scorer.start,
+                  float(scorer.rho), bool(scorer.exclusive))
+
+
+@njit(cache=True, nogil=True)
+def _project_point(K, R, t, x, y, z):
+    """The ideal pixel (u, v) of a world point in one view; NaN behind it."""
+    zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    if not zc > 1e-6:
+        return np.nan, np.nan
+    xn = (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) / zc
+    yn = (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) / zc
+    return K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]
+
+
+@njit(cache=True, nogil=True)
+def _picks(X, K, R, t, det, start, rho, exclusive):
+    """:func:`_pairs`' kernel: each landmark's nearest detection per view (the first at a
+    tie), kept within ``rho``."""
+    M = X.shape[0]
+    C = K.shape[0]
+    pick = np.full((M, C), -1, np.int64)
+    pick_d2 = np.zeros((M, C))
     for n in range(C):
-        det = scorer.det[scorer.start[n]:scorer.start[n + 1]]
-        if not len(det):
+        if start[n] == start[n + 1]:
             continue
-        uv = _project(X[None], scorer, n)[0]
-        d = np.linalg.norm(uv[:, None, :] - det[None], axis=2)
-        d[~np.isfinite(d)] = np.inf
-        q = np.argmin(d, axis=1)
-        dq = d[np.arange(len(X)), q]
-        ok = dq < scorer.rho
-        pick[ok, n] = scorer.start[n] + q[ok]
-        pick_d2[:, n] = dq * dq
-    if scorer.exclusive:
+        for m in range(M):
+            u, v = _project_point(K[n], R[n], t[n], X[m, 0], X[m, 1], X[m, 2])
+            best = np.inf
+            bq = start[n]
+            for q in range(start[n], start[n + 1]):
+                d = np.hypot(u - det[q, 0], v - det[q, 1])
+                if d < best:
+                    best = d
+                    bq = q
+            if best < rho:
+                pick[m, n] = bq
+            pick_d2[m, n] = best * best
+    if exclusive:
         exclusive_picks(pick, pick_d2)
-    out = []
+    k = 0
     for n in range(C):
-        m = np.flatnonzero(pick[:, n] >= 0)
-        if len(m):
-            out.append((n, m, scorer.det[pick[m, n]]))
-    return out
-
-
-def _project(X, scorer, n):
-    """Ideal pixels (P, M, 2) of points (P, M, 3) in view ``n`` (NaN behind it)."""
-    pc = X @ scorer.R[n].T + scorer.t[n]
-    z = np.where(pc[..., 2] > 1e-6, pc[..., 2], np.nan)
-    K = scorer.K[n]
-    xn, yn = pc[..., 0] / z, pc[..., 1] / z
-    return np.stack([K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]], axis=-1)
+        for m in range(M):
+            if pick[m, n] >= 0:
+                k += 1
+    views = np.empty(k, np.int64)
+    landmarks = np.empty(k, np.int64)
+    dets = np.empty((k, 2))
+    k = 0
+    for n in range(C):
+        for m in range(M):
+            if pick[m, n] >= 0:
+                views[k] = n
+                landmarks[k] = m
+                dets[k] = det[pick[m, n]]
+                k += 1
+    return views, landmarks, dets
 
 
 def polish(state: np.ndarray, scorer, iterations: int = 5, scale: float = 3.0, min_pairs: int = 12,
@@ -84,36 +112,69 @@ def polish(state: np.ndarray, scorer, iterations: int = 5, scale: float = 3.0, m
     height = scorer.height
     lo, hi = LIMITS_LO + 1e-9, LIMITS_HI - 1e-9
     x = state.copy()
-    probes = np.empty((N_DOF + 1, N_DOF))
     for r in range(max(int(rounds), 1)):
-        pairs = _pairs(joints_subset(x[None], height, _ALL, _NEED)[0], scorer)
-        if sum(len(m) for _, m, _ in pairs) < min_pairs:
+        views, landmarks, dets = _pairs(joints_subset(x[None], height, _ALL, _NEED)[0], scorer)
+        if len(views) < min_pairs:
             if r == 0:
                 return state
             break
-        x = _steps(x, pairs, scorer, height, iterations, scale, probes, lo, hi)
+        x = _steps(x, views, landmarks, dets, scorer.K, scorer.R, scorer.t, float(height), SEG_PARENT,
+                   AVERAGE.seg_offset, DOF_SEGMENT, DOF_AXIS, JOINT_SEG, AVERAGE.joint_local, _ALL, _NEED,
+                   int(iterations), float(scale), lo, hi)
     before, after = scorer.log_weights(np.stack([state, x]))
     return x if after >= before else state
 
 
-def _steps(x, pairs, scorer, height, iterations, scale, probes, lo, hi):
-    """``x`` after up to ``iterations`` damped Gauss-Newton steps on ``pairs``."""
+@njit(cache=True, nogil=True)
+def _steps(x, views, landmarks, dets, K, R, t, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg,
+           joint_local, joints, need, iterations, scale, lo, hi):
+    """``x`` after up to ``iterations`` damped Gauss-Newton steps on the pairs
+    (``views``, ``landmarks``, ``dets``): the Jacobian of the reprojection residuals by
+    forward differences of :data:`EPS` over the whole state, each pair weighted by the
+    soft L1 of ``scale`` px, Levenberg's damping, the step clipped to ``lo``, ``hi``."""
+    D = x.shape[0]
+    k = views.shape[0]
+    x = x.copy()
+    probes = np.empty((D + 1, D))
+    X = np.empty((D + 1, joints.shape[0], 3))
+    res = np.empty((D + 1, 2 * k))
+    J = np.empty((D, 2 * k))
+    w = np.empty(2 * k)
     for _ in range(iterations):
-        probes[:] = x
-        probes[1:] += EPS * np.eye(N_DOF)
-        X = joints_subset(probes, height, _ALL, _NEED)                           # (28, 15, 3)
-        res = np.concatenate([(_project(X[:, m], scorer, n) - det[None]).reshape(N_DOF + 1, -1)
-                              for n, m, det in pairs], axis=1)                     # (28, 2 k)
-        if not np.all(np.isfinite(res)):
+        for p in range(D + 1):
+            probes[p] = x
+        for d in range(D):
+            probes[d + 1, d] += EPS
+        fk_joints_subset_batch(probes, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local,
+                               joints, need, X)
+        finite = True
+        for p in range(D + 1):
+            for i in range(k):
+                n, m = views[i], landmarks[i]
+                u, v = _project_point(K[n], R[n], t[n], X[p, m, 0], X[p, m, 1], X[p, m, 2])
+                res[p, 2 * i] = u - dets[i, 0]
+                res[p, 2 * i + 1] = v - dets[i, 1]
+                finite = finite and np.isfinite(u) and np.isfinite(v)
+        if not finite:
             break
-        r0 = res[0]
-        J = (res[1:] - r0) / EPS                                                   # (27, 2 k)
-        e = np.hypot(r0[0::2], r0[1::2])
-        w = np.repeat(1.0 / np.sqrt(1.0 + (e / scale) ** 2), 2)                    # soft L1, per pair
-        A = (J * w) @ J.T
-        A[np.diag_indices_from(A)] += DAMPING * float(np.mean(np.diag(A))) + 1e-12
-        step = np.linalg.solve(A, -(J * w) @ r0)
-        x = np.clip(x + step, lo, hi)
-        if float(np.abs(step).max()) < 1e-4:
+        for i in range(k):
+            e = np.hypot(res[0, 2 * i], res[0, 2 * i + 1])
+            w[2 * i] = w[2 * i + 1] = 1.0 / np.sqrt(1.0 + (e / scale) ** 2)     # soft L1, per pair
+        for d in range(D):
+            for c in range(2 * k):
+                J[d, c] = (res[d + 1, c] - res[0, c]) / EPS
+        Jw = J * w
+        A = Jw @ J.T
+        diag = 0.0
+        for d in range(D):
+            diag += A[d, d]
+        for d in range(D):
+            A[d, d] += DAMPING * (diag / D) + 1e-12
+        step = np.linalg.solve(A, -(Jw @ res[0]))
+        biggest = 0.0
+        for d in range(D):
+            x[d] = min(max(x[d] + step[d], lo[d]), hi[d])
+            biggest = max(biggest, abs(step[d]))
+        if biggest < 1e-4:
             break
     return x
