@@ -47,6 +47,9 @@ class BusConfig:
     tls: TlsConfig | None = None
     auth: AuthConfig | None = None
     acl: AclConfig | None = None    # the hub's access control (app.bus_acl), made from the layout
+    #: a room whose workers all run on the hub's host admits them through a private socket
+    #: and lets no one else publish in it (app.bus_acl.outsiders_read_only)
+    private: bool = True
 
     def to_zenoh(self, mode: str = "peer") -> zenoh.Config:
         """zenoh's configuration of a session in ``mode``: ``router`` (the hub), ``client``
@@ -148,6 +151,10 @@ class Keys:
 
     def alive(self, worker: str = "*") -> str:
         return f"{self.root}/alive/{worker}"
+
+    def everything(self) -> str:
+        """Every key of the room."""
+        return f"{self.root}/**"
 
     def stage(self, stage: str, camera: str = "*") -> str:
         """The key expression of what a stage publishes (per camera for frames, masks and markers)."""

@@ -21,14 +21,25 @@ Everyone admitted may subscribe to everything and receive it. A forged frame, st
 end of stream from a camera PC under a processing stage's name, or from a host that is not
 in the layout, is dropped by the hub before it reaches a worker (the workers' own checks,
 :mod:`app.admission`, still run behind it).
+
+A room on one host (every worker on the hub's host, no TLS, ``bus.private`` not false: the
+default) needs no certificates: the launcher listens on a Unix socket in a directory of its
+own (mode 0700) besides ``bus.listen``, its workers connect through that socket, and
+:func:`outsiders_read_only` lets a session linked any other way (TCP, UDP, TLS, QUIC,
+WebSocket: a viewer, a client of the zenoh feed, or a stray process) subscribe and receive
+but publish nothing, declare no liveliness token and answer no query in the room: its
+junk is dropped by the hub, and no worker wakes for it.
 """
 from __future__ import annotations
 
 from app.bus import Keys
 from app.bus_section import certificate_name
 
-__all__ = ["certificate_name", "room_access_control", "published_keys"]
+__all__ = ["certificate_name", "room_access_control", "published_keys", "outsiders_read_only", "OUTSIDE_LINKS"]
 
+#: zenoh's link protocols other than the private Unix socket (``link_protocols`` subjects)
+OUTSIDE_LINKS = ["tcp", "tls", "udp", "quic", "ws"]
+WRITE = ["put", "delete", "liveliness_token", "declare_queryable", "reply"]
 READ = ["declare_subscriber", "query", "declare_liveliness_subscriber", "liveliness_query"]
 EVERYTHING = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
               "liveliness_query", "declare_liveliness_subscriber"]
@@ -76,3 +87,14 @@ def room_access_control(layout, hub_name: str) -> dict:
         policies.append({"rules": ["read", "receive"], "subjects": ["readers"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
+
+
+def outsiders_read_only(room: str) -> dict:
+    """zenoh's ``access_control`` section for the hub of a room on one host (module
+    docstring): what enters the hub over any link but its private socket may not publish
+    under the room's keys."""
+    return {"enabled": True, "default_permission": "allow",
+            "rules": [{"id": "outsiders", "messages": WRITE, "flows": ["ingress"], "permission": "deny",
+                       "key_exprs": [Keys(room).everything()]}],
+            "subjects": [{"id": "outsiders", "link_protocols": OUTSIDE_LINKS}],
+            "policies": [{"rules": ["outsiders"], "subjects": ["outsiders"]}]}

@@ -19,7 +19,9 @@ A room spread over several hosts admits only its own hosts with zenoh's own mean
 Paths are relative to the layout file's folder; they are made absolute here, so the
 resolved layout the launcher writes next to the results still names the same files.
 With ``tls`` every endpoint must be ``tls/`` (a ``tcp/`` one would let anyone in).
-The default stays loopback-only TCP without TLS.
+The default stays loopback-only TCP without TLS, and a room on one host admits its own
+workers through a private socket and lets no one else publish in it (``private``, true by
+default: :mod:`app.bus_acl`).
 """
 from __future__ import annotations
 
@@ -224,7 +226,7 @@ def parse_bus(value, path: str, error=InputError) -> dict:
     """The ``bus`` section of the layout file ``path``, checked: the fields of an
     :class:`app.bus.BusConfig` (the config loader builds it; this module knows no bus)."""
     value = value or {}
-    known = ("listen", "connect", "multicast", "shm", "tls", "auth", "acl")
+    known = ("listen", "connect", "multicast", "shm", "tls", "auth", "acl", "private")
     if not isinstance(value, dict):
         raise error(f"{path}: bus must be a mapping with {', '.join(known)}")
     unknown = set(value) - set(known)
@@ -244,7 +246,8 @@ def parse_bus(value, path: str, error=InputError) -> dict:
     check_endpoints(listen, endpoints["connect"], tls, error=error, prefix=f"{path}: ")
     return dict(listen=listen, connect=endpoints["connect"],
                 multicast=_flag(value, "multicast", False, "bus.multicast", path, error),
-                shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth, acl=acl)
+                shm=_flag(value, "shm", True, "bus.shm", path, error), tls=tls, auth=auth, acl=acl,
+                private=_flag(value, "private", True, "bus.private", path, error))
 
 
 def parse_acl(value, tls: TlsConfig | None, where: str, error) -> AclConfig | None:

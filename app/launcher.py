@@ -53,9 +53,11 @@ import dataclasses
 import errno
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections import deque
@@ -151,10 +153,19 @@ class Launcher:
         self.out = Path(self.layout.run.out)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / ERROR_DIR).mkdir(exist_ok=True)
+        self._private_dir: str | None = None
         if host is None:
             hub = _hub_bus(self.layout.bus)
+            connect = _connect_endpoints(hub.listen)
+            if hub.private and hub.tls is None and all(w.local for w in self.layout.workers):
+                # a room on one host: its workers come in through a socket of this run's own,
+                # and nothing linked otherwise may publish in the room (app.bus_acl)
+                self._private_dir = tempfile.mkdtemp(prefix="smartroom-bus-")
+                private = f"unixsock-stream/{self._private_dir}/hub.sock"
+                hub = dataclasses.replace(hub, listen=[*hub.listen, private])
+                connect = [private]
             self.hub_bus = hub
-            self.layout.bus = dataclasses.replace(hub, connect=_connect_endpoints(hub.listen))
+            self.layout.bus = dataclasses.replace(hub, connect=connect)
             # the sources' epochs are their start times: none of this run's is older than this
             # (app.admission.FrameWindow refuses one that is, a forger's); other hosts read it
             # from this layout
@@ -311,6 +322,9 @@ class Launcher:
             if self.hub_bus.acl is not None:   # who may publish what, from the layout (app.bus_acl)
                 from app.bus_acl import certificate_name, room_access_control
                 acl = room_access_control(self.layout, certificate_name(self.hub_bus.tls.cert))
+            elif self._private_dir is not None:
+                from app.bus_acl import outsiders_read_only
+                acl = outsiders_read_only(self.layout.room)
             self._session = open_session(self.hub_bus, mode="router", access_control=acl)
         else:
             self._session = open_session(self.layout.bus.for_worker(), mode="client")
@@ -325,6 +339,8 @@ class Launcher:
         except BaseException:
             if self._forks is not None:
                 self._forks.close()
+            if self._private_dir is not None:
+                shutil.rmtree(self._private_dir, ignore_errors=True)
             raise
         self._eos_pubs: dict = {}
         keys = Keys(self.layout.room)
@@ -353,6 +369,8 @@ class Launcher:
             for pub in self._eos_pubs.values():
                 pub.undeclare()
             session.close()
+            if self._private_dir is not None:
+                shutil.rmtree(self._private_dir, ignore_errors=True)
             if self.progress is not None:
                 self.progress.close()
             self._write_stats(final=True)

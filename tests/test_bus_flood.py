@@ -1,7 +1,10 @@
-"""Any process may publish on the bus (issue 25): stats under names that are not workers of
-the layout, sent as fast as one process can while a real run goes on, change nothing
-in the run, in its stats.json or on the monitor (the launcher once crashed on them: its
-stats table was read and written from two threads)."""
+"""Junk on the bus (issue 25). From outside a room on one host (over its TCP endpoint) the
+hub lets nothing be published in the room, so junk reaches no worker. From inside (a
+session connected as the room's workers are: a worker gone wrong), stats under names that
+are not workers of the layout, sent as fast as one process can while a real run goes on,
+change nothing in the run, in its stats.json or on the monitor (the launcher once crashed
+on them: its stats table was read and written from two threads), and junk on every key is
+refused by the workers' own checks before it is queued."""
 import json
 import subprocess
 import sys
@@ -11,7 +14,7 @@ import time
 import pytest
 import yaml
 
-from app.benchmarks.flood import flood, room_keys
+from app.benchmarks.flood import flood, inside_endpoint, room_keys
 from app.bus import BusConfig, Keys, free_port, open_session
 from app.messages import Stats
 from tests.conftest import ROOT
@@ -20,8 +23,8 @@ from tests.runs import write_layout
 pytestmark = pytest.mark.integration
 
 
-def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
-    session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
+def _flood(endpoint: str, room: str, stop: threading.Event, sent: list) -> None:
+    session = open_session(BusConfig(listen=[], connect=[endpoint]), mode="client")
     keys = Keys(room)
     try:
         publishers = {}
@@ -37,10 +40,11 @@ def _flood(port: int, room: str, stop: threading.Event, sent: list) -> None:
         session.close()
 
 
-def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0):
-    """A real run of ``recording`` (its hub on a known port) with ``flood(port, room, stop,
-    sent)`` publishing from another process's session from ``delay`` s in; ``(out, stdout,
-    stderr, exit code, messages sent)``."""
+def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0, inside=True):
+    """A real run of ``recording`` (its hub on a known port) with ``flood(endpoint, room,
+    stop, sent)`` publishing from another session from ``delay`` s in, connected as the
+    room's workers are (``inside``) or over the hub's TCP endpoint; ``(out, stdout, stderr,
+    exit code, messages sent)``."""
     port = free_port()
     path = write_layout(tmp_path / "layout.yaml", extra_workers=list(extra_workers))
     doc = yaml.safe_load(path.read_text())
@@ -51,14 +55,17 @@ def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0):
                             str(recording), "--headless", "--out", str(out)], cwd=ROOT,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stop, sent = threading.Event(), []
-    thread = threading.Thread(target=flood, args=(port, doc["room"], stop, sent), daemon=True)
     try:
         time.sleep(delay)      # the hub is up
+        endpoint = inside_endpoint(out / "layout.yaml", 60.0) if inside else f"tcp/127.0.0.1:{port}"
+        assert endpoint is not None, "the run wrote no layout.yaml"
+        thread = threading.Thread(target=flood, args=(endpoint, doc["room"], stop, sent), daemon=True)
         thread.start()
         shown, err = run.communicate(timeout=240)
     finally:
         stop.set()
-        thread.join(timeout=30)
+        if "thread" in locals():
+            thread.join(timeout=30)
         if run.poll() is None:
             run.kill()
     return out, shown, err, run.returncode, (sent or [0])[0]   # (sent: what the flood says it sent)
@@ -82,12 +89,12 @@ def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tm
 JUNK_RATE = 20000   # messages a second (issue 25's figure)
 
 
-def _junk(port: int, room: str, stop: threading.Event, sent: list) -> None:
+def _junk(endpoint: str, room: str, stop: threading.Event, sent: list) -> None:
     """Junk on every key the spine's workers and the launcher listen on (masks, frames,
     voxels, tracks, poses, stats, acks, heartbeats, ends of stream...) at JUNK_RATE."""
     cams = ["cam0", "cam1"]   # the recording's
     workers = ["grabber", "segmentation", "reconstruction", "recorder"]
-    got = flood(f"tcp/127.0.0.1:{port}", room_keys(room, cams, workers), JUNK_RATE, 1e9, stop=stop.is_set)
+    got = flood(endpoint, room_keys(room, cams, workers), JUNK_RATE, 1e9, stop=stop.is_set)
     sent.append(got)
 
 
@@ -110,7 +117,7 @@ def test_junk_on_every_key_loses_no_frame(long_recording, tmp_path):
     assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))
 
 
-def _forged_epoch(port: int, room: str, stop: threading.Event, sent: list) -> None:
+def _forged_epoch(endpoint: str, room: str, stop: threading.Event, sent: list) -> None:
     """Valid masks of cam0 in a forged epoch (2^40 ms: the year 2004), frames 0-249 over
     and over, from before the grabber's first frame on."""
     import zenoh
@@ -118,7 +125,7 @@ def _forged_epoch(port: int, room: str, stop: threading.Event, sent: list) -> No
 
     from app.messages import Mask
 
-    session = open_session(BusConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]), mode="client")
+    session = open_session(BusConfig(listen=[], connect=[endpoint]), mode="client")
     try:
         pub = session.declare_publisher(Keys(room).mask("cam0"), congestion_control=zenoh.CongestionControl.BLOCK)
         m = np.zeros((15, 20), bool)
@@ -130,6 +137,25 @@ def _forged_epoch(port: int, room: str, stop: threading.Event, sent: list) -> No
         sent.append(i)
     finally:
         session.close()
+
+
+def test_junk_from_outside_the_room_reaches_no_worker(long_recording, tmp_path):
+    """The same junk at 20,000 messages a second, from a session linked to the hub over
+    its TCP endpoint (where a viewer or a client of the zenoh feed connects): the hub of a
+    room on one host lets nothing linked that way publish in the room, so no worker
+    refuses a single message (none reaches them), and the run is complete."""
+    from app.results import iter_voxels
+
+    out, _, err, rc, got = _run_beside(_junk, long_recording, tmp_path, inside=False)
+    assert rc == 0, err[-2000:]
+    assert got["rate"] > 0.9 * JUNK_RATE and got["seconds"] > 5, got
+    layout = yaml.safe_load((out / "layout.yaml").read_text())
+    assert [ep.split("/")[0] for ep in layout["bus"]["connect"]] == ["unixsock-stream"]   # the workers' way in
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"]
+    refused = {name: sum(w.get("rejected", {}).values()) for name, w in stats["workers"].items()}
+    assert not any(refused.values()), refused
+    assert [m.frame for m in iter_voxels(out / "voxels.bin")] == list(range(250))
 
 
 def test_a_forged_epoch_sent_before_the_stream_holds_no_key(long_recording, tmp_path):

@@ -18,6 +18,13 @@ frame). Congestion control is ``BLOCK``: what is counted as sent reached the hub
 ``python -m app.benchmarks.flood --connect EP --room R --keys K,... --rate N --seconds S``
 runs it in its own process (so it does not take the measuring process's interpreter);
 the last line it prints is ``{"sent": n, "seconds": s, "rate": n / s}``.
+
+Where it comes from: by default from outside the room, over the hub's TCP endpoint, as a
+stray process, a viewer or a client of the zenoh feed would; a room on one host (the
+default layout) lets nothing linked that way publish in it (:mod:`app.bus_acl`), so the
+hub drops the junk. ``--inside LAYOUT`` connects the way the room's own workers do (the
+endpoint its resolved ``layout.yaml`` gives them: the private socket), as a worker gone
+wrong would: then the junk reaches the workers and their own checks refuse it.
 """
 from __future__ import annotations
 
@@ -105,19 +112,43 @@ def flood(connect: str, keys: list[str], rate: float, seconds: float, frames: in
 
 
 def _wait_for_hub(connect: str, timeout: float, stop=None) -> bool:
-    """Wait until the hub's TCP endpoint accepts a connection (the flood may be started
-    before the run that opens it)."""
+    """Wait until the hub's TCP endpoint or Unix socket accepts a connection (the flood
+    may be started before the run that opens it)."""
     import socket
 
-    host, port = connect.split("/", 1)[1].rsplit(":", 1)
+    proto, _, address = connect.partition("/")
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline and not (stop is not None and stop()):
         try:
-            with socket.create_connection((host.strip("[]"), int(port)), timeout=0.5):
-                return True
+            if proto == "unixsock-stream":
+                with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+                    s.settimeout(0.5)
+                    s.connect(address)
+            else:
+                host, port = address.rsplit(":", 1)
+                socket.create_connection((host.strip("[]"), int(port)), timeout=0.5).close()
+            return True
         except OSError:
             time.sleep(0.05)
     return False
+
+
+def inside_endpoint(layout_file, timeout: float, stop=None) -> str | None:
+    """The endpoint the room's own workers connect to, from the run's resolved layout
+    (written when its launcher starts; None if it does not appear within ``timeout``)."""
+    import yaml
+
+    deadline = time.monotonic() + timeout
+    path = Path(layout_file)
+    while time.monotonic() < deadline and not (stop is not None and stop()):
+        try:
+            connect = (yaml.safe_load(path.read_text()) or {}).get("bus", {}).get("connect") or []
+            if connect:
+                return connect[0]
+        except (OSError, yaml.YAMLError):
+            pass
+        time.sleep(0.05)
+    return None
 
 
 def _outputs_equal(a, b) -> bool | None:
@@ -145,11 +176,12 @@ def _refused(stats: dict) -> int:
     return n
 
 
-def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=True) -> dict:
+def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=True, inside: bool = False) -> dict:
     """The pipeline on ``run`` in each mode, quiet and beside a flood of junk at ``rate``
-    messages a second on every key of the room (another process, :func:`flood`): RTF of
-    both, what the flood cost, frames delivered, and (unpaced, a recording's results do not
-    depend on load) whether the flooded run wrote the same tracks and poses."""
+    messages a second on every key of the room (another process, :func:`flood`; from
+    outside the room, or ``inside`` it: module docstring): RTF of both, what the flood
+    cost, frames delivered, and (unpaced, a recording's results do not depend on load)
+    whether the flooded run wrote the same tracks and poses."""
     import subprocess
     import sys
 
@@ -160,7 +192,8 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
 
     out = Path(out)
     cameras = Recording(run.recording).calibration.cameras
-    result = {"recording": run.recording, "frames": run.frames, "rate": rate, "modes": {}}
+    result = {"recording": run.recording, "frames": run.frames, "rate": rate, "modes": {},
+              "from": "inside" if inside else "outside"}
     for mode in modes:
         row = {}
         for label in ("quiet", "flooded"):
@@ -170,8 +203,11 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
             r = RunSpec(**{**run.__dict__, "pace": MODES[mode]})
             flooder = None
             if label == "flooded":
+                resolved = out / label / mode / "layout.yaml"
+                resolved.unlink(missing_ok=True)   # the run about to start writes it
+                where = ["--inside", str(resolved)] if inside else ["--connect", f"tcp/127.0.0.1:{port}"]
                 flooder = subprocess.Popen(
-                    [sys.executable, "-m", "app.benchmarks.flood", "--connect", f"tcp/127.0.0.1:{port}",
+                    [sys.executable, "-m", "app.benchmarks.flood", *where,
                      "--room", lay.room, "--cameras", ",".join(c.name for c in cameras),
                      "--workers", ",".join(w.name for w in lay.workers), "--rate", str(rate),
                      "--seconds", "86400", "--frames", str(run.frames or 250)],
@@ -209,8 +245,8 @@ def measure(layout, run, out, rate: float, modes=("unpaced", "paced"), progress=
 def table(result: dict) -> str:
     head = (f"{'mode':<10}{'RTF quiet':>10}{'flooded':>9}{'cost':>7}{'out quiet':>10}{'flooded':>9}"
             f"{'dropped':>9}{'junk/s':>9}{'sent':>9}{'refused':>9}{'same results':>14}")
-    lines = [f"junk on every key of the room at {result['rate']:g} msg/s beside {result['frames']} frames of "
-             f"{result['recording']}", head]
+    lines = [f"junk on every key of the room at {result['rate']:g} msg/s from {result.get('from', 'outside')} the room "
+             f"beside {result['frames']} frames of {result['recording']}", head]
     for mode, r in result["modes"].items():
         q, f = r["quiet"], r["flooded"]
         junk = f["junk"] or {}
@@ -229,7 +265,9 @@ def table(result: dict) -> str:
 
 def _main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--connect", required=True, help="the hub's endpoint, e.g. tcp/127.0.0.1:7447")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--connect", help="the hub's endpoint, e.g. tcp/127.0.0.1:7447")
+    where.add_argument("--inside", metavar="LAYOUT", help="a run's resolved layout.yaml: connect as its workers do")
     p.add_argument("--room", required=True)
     p.add_argument("--cameras", default="", help="camera names, comma-separated")
     p.add_argument("--workers", default="", help="worker names, comma-separated")
@@ -240,7 +278,11 @@ def _main() -> None:
     stopping = []
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(1))
     keys = room_keys(a.room, [c for c in a.cameras.split(",") if c], [w for w in a.workers.split(",") if w])
-    print(json.dumps(flood(a.connect, keys, a.rate, a.seconds, a.frames, stop=lambda: bool(stopping))), flush=True)
+    connect = a.connect or inside_endpoint(a.inside, HUB_WAIT_S, stop=lambda: bool(stopping))
+    if connect is None:
+        print(json.dumps({"sent": 0, "seconds": 0.0, "rate": 0.0}), flush=True)
+        return
+    print(json.dumps(flood(connect, keys, a.rate, a.seconds, a.frames, stop=lambda: bool(stopping))), flush=True)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@
   and tabulates RTF against the parameter.
 - ``smartroom bench bus``: codec + zenoh latency and throughput between two processes.
 - ``smartroom bench flood``: the pipeline quiet and beside junk on every key of the room
-  at ``--flood-rate`` messages a second (default 20,000) from another process, in each of
+  at ``--flood-rate`` messages a second (default 20,000) from another process (from outside
+  the room, or with ``--flood-inside`` connected as its workers are), in each of
   ``--modes``: what the flood costs in RTF, frames delivered, messages refused, and whether
   the unpaced (offline) run wrote the same tracks and poses (:mod:`app.benchmarks.flood`).
 - ``smartroom bench grabber``: decode, reduce and encode cost per camera at 640x480 and
@@ -101,6 +102,9 @@ def add_arguments(p) -> None:
     p.add_argument("--protocols", default="osc,vmc,lsl", help="streaming: protocols (default osc,vmc,lsl)")
     p.add_argument("--flood-rate", type=float, default=20000.0,
                    help="flood: junk messages a second on the room's keys (default 20000)")
+    p.add_argument("--flood-inside", action="store_true",
+                   help="flood: the junk comes in as the room's own workers do (a worker gone wrong), not from "
+                        "outside the room over its TCP endpoint (which a room on one host does not let publish)")
     p.add_argument("--seeds", default="1000:1020",
                    help="accuracy: random scenes A:B (A to B-1) or a list; tune below 1000, report 1000 and up "
                         "(default 1000:1020)")
@@ -171,7 +175,7 @@ def _flood(args, out: Path) -> dict:
         raise InputError(f"--flood-rate {args.flood_rate:g}: must be above 0 and at most 1,000,000")
     print(f"smartroom bench flood: {run.frames} frames of {run.recording}, junk at {args.flood_rate:g} msg/s; "
           f"runs in {out}", file=sys.stderr)
-    result = flood.measure(layout, run, out, args.flood_rate, modes)
+    result = flood.measure(layout, run, out, args.flood_rate, modes, inside=args.flood_inside)
     print(flood.table(result))
     return result
 
