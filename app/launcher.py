@@ -53,6 +53,7 @@ import dataclasses
 import errno
 import json
 import os
+import secrets
 import shutil
 import signal
 import subprocess
@@ -160,7 +161,8 @@ class Launcher:
             if hub.private and hub.tls is None and all(w.local for w in self.layout.workers):
                 # a room on one host: its workers come in through a socket of this run's own,
                 # and nothing linked otherwise may publish in the room (app.bus_acl)
-                self._private_dir = tempfile.mkdtemp(prefix="smartroom-bus-")
+                # (made when the run starts: a launcher that is only built leaves nothing behind)
+                self._private_dir = os.path.join(tempfile.gettempdir(), f"smartroom-bus-{secrets.token_hex(6)}")
                 private = f"unixsock-stream/{self._private_dir}/hub.sock"
                 hub = dataclasses.replace(hub, listen=[*hub.listen, private])
                 connect = [private]
@@ -333,6 +335,8 @@ class Launcher:
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
         self.started = time.time()
+        if self._private_dir is not None:
+            os.mkdir(self._private_dir, 0o700)   # its socket: for this user's processes only
         self._start_forks()
         try:
             session = self._open_bus()
