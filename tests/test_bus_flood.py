@@ -82,6 +82,7 @@ def test_stats_from_workers_outside_the_layout_change_nothing(long_recording, tm
     assert stats["stages"]["recorder"]["frames_in"] == 250
     # the monitor (a worker that reads every stats message) refused them and never showed them
     assert stats["workers"]["monitor"]["bad_messages"] > 100
+    assert stats["workers"]["monitor"]["frames_missing"] == 0   # it takes no frames, so misses none
     lines = [ln for ln in (shown + err).splitlines() if "not a worker of the layout" not in ln]   # (refusals)
     assert any("rtf=" in ln for ln in lines) and not any("zz" in ln for ln in lines)   # real stages only
 

@@ -640,7 +640,9 @@ class Worker(Restarts):
     # -- stats and state -----------------------------------------------------------------
     def _figures(self, final: bool = False) -> dict:
         frames, first, _ = self.stream_info()
-        known = self._source_eos is not None or self.is_source
+        # a worker that takes no frames (the monitor reads stats only) misses none of them
+        takes_frames = self.is_source or any(stage != "stats" for stage in self.CONSUMES)
+        known = takes_frames and (self._source_eos is not None or self.is_source)
         figures = self.ledger.figures(final=final, expected=frames if known else None, first=first,
                                       share=self.frame_share)
         if self.frame_share is not None:
