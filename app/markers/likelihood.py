@@ -283,6 +283,32 @@ def _ray(K, R, u, v, out):
 
 
 @njit(cache=True, nogil=True)
+def project_ideal(K, R, t, x, y, z, min_depth):
+    """The ideal pixel (u, v) of a world point in one view (``K``, ``R``, ``t``); NaN
+    unless it lies more than ``min_depth`` in front of the camera."""
+    zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    if not zc > min_depth:
+        return np.nan, np.nan
+    xn = (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) / zc
+    yn = (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) / zc
+    return K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]
+
+
+@njit(cache=True, nogil=True)
+def nearest_detection(det, lo, hi, u, v):
+    """``(distance, index)`` of the detection of ``det[lo:hi]`` nearest to (u, v), the
+    first at a tie; ``(inf, -1)`` with none (or a NaN pixel)."""
+    best = np.inf
+    bq = -1
+    for q in range(lo, hi):
+        d = np.hypot(u - det[q, 0], v - det[q, 1])
+        if d < best:
+            best = d
+            bq = q
+    return best, bq
+
+
+@njit(cache=True, nogil=True)
 def _supported(det, start, F, K, R, t, centres, tol):
     """:func:`supported_detections` over detections stacked view by view (``start``)."""
     C = start.shape[0] - 1
@@ -343,20 +369,8 @@ def _supported(det, start, F, K, R, t, centres, tol):
                     for c in range(C):
                         if c == a or c == b or start[c] == start[c + 1]:
                             continue
-                        zc = R[c, 2, 0] * X[0] + R[c, 2, 1] * X[1] + R[c, 2, 2] * X[2] + t[c, 2]
-                        if not zc > 1e-9:
-                            continue
-                        xc = (R[c, 0, 0] * X[0] + R[c, 0, 1] * X[1] + R[c, 0, 2] * X[2] + t[c, 0]) / zc
-                        yc = (R[c, 1, 0] * X[0] + R[c, 1, 1] * X[1] + R[c, 1, 2] * X[2] + t[c, 1]) / zc
-                        u = K[c, 0, 0] * xc + K[c, 0, 1] * yc + K[c, 0, 2]
-                        v = K[c, 1, 1] * yc + K[c, 1, 2]
-                        best = np.inf
-                        bq = -1
-                        for q in range(start[c], start[c + 1]):
-                            dq = np.hypot(u - det[q, 0], v - det[q, 1])
-                            if dq < best:
-                                best = dq
-                                bq = q
+                        u, v = project_ideal(K[c], R[c], t[c], X[0], X[1], X[2], 1e-9)
+                        best, bq = nearest_detection(det, start[c], start[c + 1], u, v)
                         if best < tol:
                             flags[bq] = True
                             seen = True

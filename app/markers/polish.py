@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.markers.likelihood import exclusive_picks
+from app.markers.likelihood import exclusive_picks, nearest_detection, project_ideal
 from app.pose.model import (AVERAGE, DOF_AXIS, DOF_SEGMENT, JOINT_SEG, LIMITS_HI, LIMITS_LO, SEG_PARENT,
                             fk_joints_subset_batch, joints_subset, segments_needed)
 
@@ -45,17 +45,6 @@ def _pairs(X, scorer):
 
 
 @njit(cache=True, nogil=True)
-def _project_point(K, R, t, x, y, z):
-    """The ideal pixel (u, v) of a world point in one view; NaN behind it."""
-    zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-    if not zc > 1e-6:
-        return np.nan, np.nan
-    xn = (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) / zc
-    yn = (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) / zc
-    return K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]
-
-
-@njit(cache=True, nogil=True)
 def _picks(X, K, R, t, det, start, rho, exclusive):
     """:func:`_pairs`' kernel: each landmark's nearest detection per view (the first at a
     tie), kept within ``rho``."""
@@ -67,14 +56,8 @@ def _picks(X, K, R, t, det, start, rho, exclusive):
         if start[n] == start[n + 1]:
             continue
         for m in range(M):
-            u, v = _project_point(K[n], R[n], t[n], X[m, 0], X[m, 1], X[m, 2])
-            best = np.inf
-            bq = start[n]
-            for q in range(start[n], start[n + 1]):
-                d = np.hypot(u - det[q, 0], v - det[q, 1])
-                if d < best:
-                    best = d
-                    bq = q
+            u, v = project_ideal(K[n], R[n], t[n], X[m, 0], X[m, 1], X[m, 2], 1e-6)
+            best, bq = nearest_detection(det, start[n], start[n + 1], u, v)
             if best < rho:
                 pick[m, n] = bq
             pick_d2[m, n] = best * best
@@ -151,7 +134,7 @@ def _steps(x, views, landmarks, dets, K, R, t, height, seg_parent, seg_offset, d
         for p in range(D + 1):
             for i in range(k):
                 n, m = views[i], landmarks[i]
-                u, v = _project_point(K[n], R[n], t[n], X[p, m, 0], X[p, m, 1], X[p, m, 2])
+                u, v = project_ideal(K[n], R[n], t[n], X[p, m, 0], X[p, m, 1], X[p, m, 2], 1e-6)
                 res[p, 2 * i] = u - dets[i, 0]
                 res[p, 2 * i + 1] = v - dets[i, 1]
                 finite = finite and np.isfinite(u) and np.isfinite(v)
