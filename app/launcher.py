@@ -159,9 +159,9 @@ class Launcher:
             hub = _hub_bus(self.layout.bus)
             connect = _connect_endpoints(hub.listen)
             if hub.private and hub.tls is None and all(w.local for w in self.layout.workers):
-                # a room on one host: its workers come in through a socket of this run's own,
-                # and nothing linked otherwise may publish in the room (app.bus_acl)
-                # (made when the run starts: a launcher that is only built leaves nothing behind)
+                # a room on one host: its workers come in through a socket of this run's own
+                # (its folder is made when the hub opens), and nothing linked otherwise may
+                # publish in the room (app.bus_acl)
                 self._private_dir = os.path.join(tempfile.gettempdir(), f"smartroom-bus-{secrets.token_hex(6)}")
                 private = f"unixsock-stream/{self._private_dir}/hub.sock"
                 hub = dataclasses.replace(hub, listen=[*hub.listen, private])
@@ -327,6 +327,7 @@ class Launcher:
             elif self._private_dir is not None:
                 from app.bus_acl import outsiders_read_only
                 acl = outsiders_read_only(self.layout.room)
+                os.mkdir(self._private_dir, 0o700)   # its socket: for this user's processes only
             self._session = open_session(self.hub_bus, mode="router", access_control=acl)
         else:
             self._session = open_session(self.layout.bus.for_worker(), mode="client")
@@ -335,8 +336,6 @@ class Launcher:
     def run(self) -> int:
         """Start everything and wait for the end; the exit code of the run."""
         self.started = time.time()
-        if self._private_dir is not None:
-            os.mkdir(self._private_dir, 0o700)   # its socket: for this user's processes only
         self._start_forks()
         try:
             session = self._open_bus()
