@@ -162,7 +162,9 @@ class Launcher:
                 # a room on one host: its workers come in through a socket of this run's own
                 # (its folder is made when the hub opens), and nothing linked otherwise may
                 # publish in the room (app.bus_acl)
-                self._private_dir = os.path.join(tempfile.gettempdir(), f"smartroom-bus-{secrets.token_hex(6)}")
+                tmp = tempfile.gettempdir()
+                tmp = tmp if len(tmp) <= 64 else "/tmp"   # a Unix socket's path has room for ~100 bytes
+                self._private_dir = os.path.join(tmp, f"smartroom-bus-{secrets.token_hex(6)}")
                 private = f"unixsock-stream/{self._private_dir}/hub.sock"
                 hub = dataclasses.replace(hub, listen=[*hub.listen, private])
                 connect = [private]
