@@ -129,6 +129,41 @@ def _hub_bus(bus: BusConfig) -> BusConfig:
     return dataclasses.replace(bus, listen=listen)
 
 
+PRIVATE_PREFIX = "smartroom-bus-"   # the private sockets' folders (a room on one host)
+
+
+def sweep_private_sockets(folder: str, min_age_s: float = 60.0) -> int:
+    """Remove the private-socket folders in ``folder`` that launchers killed outright
+    (SIGKILL, power cut) left behind: this user's, older than ``min_age_s``, whose socket
+    nobody listens on any more; how many."""
+    import socket
+
+    removed = 0
+    try:
+        entries = [e for e in os.scandir(folder) if e.name.startswith(PRIVATE_PREFIX) and e.is_dir()]
+    except OSError:
+        return 0
+    for e in entries:
+        try:
+            st = e.stat()
+            if st.st_uid != os.getuid() or time.time() - st.st_mtime < min_age_s:
+                continue
+            sock = os.path.join(e.path, "hub.sock")
+            if os.path.exists(sock):
+                with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+                    probe.settimeout(0.5)
+                    try:
+                        probe.connect(sock)
+                        continue            # a hub listens there: a live run's
+                    except (ConnectionRefusedError, FileNotFoundError):
+                        pass
+            shutil.rmtree(e.path, ignore_errors=True)
+            removed += 1
+        except OSError:
+            continue
+    return removed
+
+
 def _connect_endpoints(listen: list[str]) -> list[str]:
     return [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in listen]
 
@@ -164,7 +199,8 @@ class Launcher:
                 # publish in the room (app.bus_acl)
                 tmp = tempfile.gettempdir()
                 tmp = tmp if len(tmp) <= 64 else "/tmp"   # a Unix socket's path has room for ~100 bytes
-                self._private_dir = os.path.join(tmp, f"smartroom-bus-{secrets.token_hex(6)}")
+                sweep_private_sockets(tmp)
+                self._private_dir = os.path.join(tmp, f"{PRIVATE_PREFIX}{secrets.token_hex(6)}")
                 private = f"unixsock-stream/{self._private_dir}/hub.sock"
                 hub = dataclasses.replace(hub, listen=[*hub.listen, private])
                 connect = [private]

@@ -58,3 +58,42 @@ def test_outsiders_subscribe_to_the_room_but_what_they_publish_in_it_reaches_no_
     assert [m for m in inside_got if m[0].startswith("smartroom/")] == real        # the junk reached no one
     assert ("elsewhere/chat", b"not the room's") in inside_got                   # other keys are not the room's
     assert alive == []                                                            # nor a forged liveliness token
+
+
+def test_a_new_launcher_sweeps_the_private_sockets_killed_launchers_left(tmp_path):
+    """A launcher killed outright (SIGKILL, a power cut) cannot remove its socket's folder;
+    the next one removes those of this user that are a minute old and where nothing
+    listens, and leaves a live run's, a folder just made and anything else alone."""
+    import os
+    import socket
+
+    from app.launcher import PRIVATE_PREFIX, sweep_private_sockets
+
+    def folder(name, listening=None, socket_file=True, age=120.0):
+        d = tmp_path / name
+        d.mkdir()
+        if socket_file:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.bind(str(d / "hub.sock"))
+            if listening is not None:
+                s.listen(1)
+                listening.append(s)
+            else:
+                s.close()          # the file stays, nobody listens: a dead hub's
+        old = time.time() - age
+        os.utime(d, (old, old))
+        return d
+
+    live = []
+    dead = folder(f"{PRIVATE_PREFIX}dead")
+    empty = folder(f"{PRIVATE_PREFIX}empty", socket_file=False)
+    alive = folder(f"{PRIVATE_PREFIX}alive", listening=live)
+    fresh = folder(f"{PRIVATE_PREFIX}fresh", age=0.0)
+    other = folder("someone-else", socket_file=False)
+    try:
+        assert sweep_private_sockets(str(tmp_path)) == 2
+    finally:
+        for s in live:
+            s.close()
+    assert not dead.exists() and not empty.exists()
+    assert alive.exists() and fresh.exists() and other.exists()
