@@ -263,11 +263,19 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
     start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
     det = np.ascontiguousarray(np.concatenate([np.asarray(d, float).reshape(-1, 2) for d in ideal])
                                if len(ideal) else np.zeros((0, 2)))
-    K = np.array([c.K for c in cameras], dtype=np.float64).reshape(-1, 3, 3)
-    R = np.array([c.R for c in cameras], dtype=np.float64).reshape(-1, 3, 3)
-    t = np.array([c.t for c in cameras], dtype=np.float64).reshape(-1, 3)
-    centres = np.array([c.centre for c in cameras], dtype=np.float64).reshape(-1, 3)
-    return _supported(det, start, np.ascontiguousarray(F, dtype=np.float64), K, R, t, centres, float(tol))
+    K, R, t, centres = camera_arrays(cameras)
+    E1, E2 = pair_distances(det, start, np.ascontiguousarray(F, dtype=np.float64))
+    return _supported(det, start, E1, E2, K, R, t, centres, float(tol))
+
+
+def camera_arrays(cameras) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``K (C, 3, 3), R (C, 3, 3), t (C, 3)`` and the optical centres ``(C, 3)`` of
+    ``cameras``, for the kernels."""
+    cameras = list(cameras)
+    return (np.array([c.K for c in cameras], dtype=np.float64).reshape(-1, 3, 3),
+            np.array([c.R for c in cameras], dtype=np.float64).reshape(-1, 3, 3),
+            np.array([c.t for c in cameras], dtype=np.float64).reshape(-1, 3),
+            np.array([c.centre for c in cameras], dtype=np.float64).reshape(-1, 3))
 
 
 @njit(cache=True, nogil=True)
@@ -309,8 +317,9 @@ def nearest_detection(det, lo, hi, u, v):
 
 
 @njit(cache=True, nogil=True)
-def _supported(det, start, F, K, R, t, centres, tol):
-    """:func:`supported_detections` over detections stacked view by view (``start``)."""
+def _supported(det, start, E1, E2, K, R, t, centres, tol):
+    """:func:`supported_detections` over detections stacked view by view (``start``),
+    with their :func:`pair_distances`."""
     C = start.shape[0] - 1
     Q = det.shape[0]
     flags = np.zeros(Q, np.bool_)
@@ -325,27 +334,19 @@ def _supported(det, start, F, K, R, t, centres, tol):
     da = np.empty(3)
     db = np.empty(3)
     X = np.empty(3)
+    tol2 = tol * tol
     for a in range(C):
         for b in range(a + 1, C):
-            f = F[a, b]
             oa = centres[a]
             ob = centres[b]
             for qa in range(start[a], start[a + 1]):
                 xa = det[qa, 0]
                 ya = det[qa, 1]
-                la = f[0, 0] * xa + f[0, 1] * ya + f[0, 2]        # L(p_a, b) = F_ab p_a (Eq. 6.6)
-                lb = f[1, 0] * xa + f[1, 1] * ya + f[1, 2]
-                lc = f[2, 0] * xa + f[2, 1] * ya + f[2, 2]
                 for qb in range(start[b], start[b + 1]):
+                    if not E1[qa, qb] + E2[qa, qb] < tol2:    # Eq. 6.6, squared
+                        continue
                     xb = det[qb, 0]
                     yb = det[qb, 1]
-                    ma = f[0, 0] * xb + f[1, 0] * yb + f[2, 0]    # L(p_b, a) = F_ab^T p_b
-                    mb = f[0, 1] * xb + f[1, 1] * yb + f[2, 1]
-                    mc = f[0, 2] * xb + f[1, 2] * yb + f[2, 2]
-                    d1 = abs(la * xb + lb * yb + lc) / np.hypot(la, lb)
-                    d2 = abs(ma * xa + mb * ya + mc) / np.hypot(ma, mb)
-                    if not np.hypot(d1, d2) < tol:
-                        continue
                     # the midpoint of the rays' closest points
                     _ray(K[a], R[a], xa, ya, da)
                     _ray(K[b], R[b], xb, yb, db)
@@ -412,9 +413,7 @@ class MarkerScorer:
         self.candidates = bool(candidates)   # keep the supported pairs' 3D points (the arms' proposals)
         self.points = np.zeros((0, 3))
         self.pair_points = np.zeros((0, 3))
-        self.K = np.array([c.K for c in self.cameras])
-        self.R = np.array([c.R for c in self.cameras])
-        self.t = np.array([c.t for c in self.cameras])
+        self.K, self.R, self.t, self.centres = camera_arrays(self.cameras)
         self.F = fundamentals(self.cameras)
         self.joints = np.arange(15, dtype=np.int64)
         self.need = segments_needed(self.joints)
@@ -430,15 +429,15 @@ class MarkerScorer:
         ideal = [ideal_pixels(c, d) for c, d in zip(self.cameras, detections)]
         self.start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
         self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
+        self.E1, self.E2 = pair_distances(self.det, self.start, self.F)
         if self.cost == "both_ways" or self.candidates:
-            self.supported, self.points, self.pair_points = supported_detections(ideal, self.cameras, self.F,
-                                                                                 self.support_px)
+            self.supported, self.points, self.pair_points = _supported(
+                self.det, self.start, self.E1, self.E2, self.K, self.R, self.t, self.centres, self.support_px)
         else:
             self.supported, self.points = np.zeros(len(self.det), np.bool_), np.zeros((0, 3))
             self.pair_points = np.zeros((0, 3))
         if self.cost != "both_ways":
             self.supported = np.zeros(len(self.det), np.bool_)
-        self.E1, self.E2 = pair_distances(self.det, self.start, self.F)
 
     def costs(self, states: np.ndarray) -> np.ndarray:
         return self._costs(joints_subset(states, self.height, self.joints, self.need))
