@@ -25,7 +25,7 @@ from numba import njit
 
 from app.markers.likelihood import exclusive_picks, nearest_detection, project_ideal
 from app.pose.model import (AVERAGE, DOF_AXIS, DOF_SEGMENT, JOINT_SEG, LIMITS_HI, LIMITS_LO, SEG_PARENT,
-                            fk_joints_subset_batch, joints_subset, segments_needed)
+                            fk_probed, joints_subset, segments_needed)
 
 __all__ = ["polish"]
 
@@ -118,18 +118,15 @@ def _steps(x, views, landmarks, dets, K, R, t, height, seg_parent, seg_offset, d
     D = x.shape[0]
     k = views.shape[0]
     x = x.copy()
+    every = np.arange(D)                 # the Jacobian over the whole state
     probes = np.empty((D + 1, D))
     X = np.empty((D + 1, joints.shape[0], 3))
     res = np.empty((D + 1, 2 * k))
     J = np.empty((D, 2 * k))
     w = np.empty(2 * k)
     for _ in range(iterations):
-        for p in range(D + 1):
-            probes[p] = x
-        for d in range(D):
-            probes[d + 1, d] += EPS
-        fk_joints_subset_batch(probes, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local,
-                               joints, need, X)
+        fk_probed(x, every, EPS, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local,
+                  joints, need, probes, X)
         finite = True
         for p in range(D + 1):
             for i in range(k):

@@ -21,7 +21,7 @@ from numba import njit
 
 from app.pose.detections import Detections, Importance
 from app.pose.model import (AVERAGE, DOF, DOF_AXIS, DOF_SEGMENT, JOINT_SEG, LIMITS_HI, LIMITS_LO, SEG_PARENT,
-                            fk_joints_subset_batch, joints_subset, segments_needed)
+                            fk_probed, joints_subset, segments_needed)
 
 __all__ = ["agreed_points", "LimbProposals"]
 
@@ -151,12 +151,8 @@ def _leg_steps(S, targets, dofs, joint, need, height, seg_parent, seg_offset, do
     b = np.empty(D)
     for row in range(S.shape[0]):
         for _ in range(steps):
-            for k in range(D + 1):
-                probes[k] = S[row]
-            for k in range(D):                 # the row and its finite-difference copies
-                probes[k + 1, dofs[k]] += eps
-            fk_joints_subset_batch(probes, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg,
-                                   joint_local, joint, need, ankles)
+            fk_probed(S[row], dofs, eps, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg,
+                      joint_local, joint, need, probes, ankles)
             for k in range(D):
                 for i in range(3):
                     J[i, k] = (ankles[k + 1, 0, i] - ankles[0, 0, i]) / eps

@@ -250,6 +250,20 @@ def fk_joints_subset_batch(states, height, seg_parent, seg_offset, dof_segment, 
                                                    + R[s, i, 2] * joint_local[j, 2])
 
 
+@njit(cache=True, nogil=True)
+def fk_probed(x, dofs, eps, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local, joints,
+              need, probes, out):
+    """Forward differences' kinematics: ``joints`` of the state ``x`` into ``out[0]`` and,
+    into ``out[k + 1]``, of ``x`` with ``dofs[k]`` moved by ``eps`` (``probes``
+    ``(len(dofs) + 1, 27)`` is the scratch; :func:`fk_joints_subset_batch`'s arithmetic)."""
+    for k in range(dofs.shape[0] + 1):
+        probes[k] = x
+    for k in range(dofs.shape[0]):
+        probes[k + 1, dofs[k]] += eps
+    fk_joints_subset_batch(probes, height, seg_parent, seg_offset, dof_segment, dof_axis, joint_seg, joint_local,
+                           joints, need, out)
+
+
 #: Shares of the stature of the legs (hip to ankle) and the trunk (pelvis to neck) in the
 #: average proportions above.
 LEG_SHARE, TRUNK_SHARE = 0.240 + SHIN, 0.295
