@@ -136,17 +136,16 @@ def _wait_for_hub(connect: str, timeout: float, stop=None) -> bool:
 def inside_endpoint(layout_file, timeout: float, stop=None) -> str | None:
     """The endpoint the room's own workers connect to, from the run's resolved layout
     (written when its launcher starts; None if it does not appear within ``timeout``)."""
-    import yaml
+    from app.config import LayoutError, load_layout
 
     deadline = time.monotonic() + timeout
     path = Path(layout_file)
     while time.monotonic() < deadline and not (stop is not None and stop()):
-        try:
-            connect = (yaml.safe_load(path.read_text()) or {}).get("bus", {}).get("connect") or []
-            if connect:
-                return connect[0]
-        except (OSError, yaml.YAMLError):
-            pass
+        if path.exists():   # (written whole: Layout.save)
+            try:
+                return load_layout(path).bus.for_worker().connect[0]
+            except (LayoutError, IndexError):
+                return None
         time.sleep(0.05)
     return None
 
