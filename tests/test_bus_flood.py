@@ -54,7 +54,7 @@ def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0, inside=
     run = subprocess.Popen([sys.executable, "-m", "app.cli", "run", "--layout", str(path), "--recording",
                             str(recording), "--headless", "--out", str(out)], cwd=ROOT,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    stop, sent = threading.Event(), []
+    stop, sent, thread = threading.Event(), [], None
     try:
         time.sleep(delay)      # the hub is up
         endpoint = inside_endpoint(out / "layout.yaml", 60.0) if inside else f"tcp/127.0.0.1:{port}"
@@ -64,7 +64,7 @@ def _run_beside(flood, recording, tmp_path, extra_workers=(), delay=2.0, inside=
         shown, err = run.communicate(timeout=240)
     finally:
         stop.set()
-        if "thread" in locals():
+        if thread is not None:
             thread.join(timeout=30)
         if run.poll() is None:
             run.kill()
