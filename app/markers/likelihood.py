@@ -260,12 +260,19 @@ def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.
     third view (a false detection rarely has both); with two views, the first test alone.
     Also the 3D points (K, 3) the supported pairs triangulate (marker candidates), and
     those (K2, 3) of every consistent pair (a marker two views see, or a chance match)."""
-    start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
-    det = np.ascontiguousarray(np.concatenate([np.asarray(d, float).reshape(-1, 2) for d in ideal])
-                               if len(ideal) else np.zeros((0, 2)))
+    det, start = stacked(ideal)
     K, R, t, centres = camera_arrays(cameras)
     E1, E2 = pair_distances(det, start, np.ascontiguousarray(F, dtype=np.float64))
     return _supported(det, start, E1, E2, K, R, t, centres, float(tol))
+
+
+def stacked(ideal) -> tuple[np.ndarray, np.ndarray]:
+    """Per-view detections ``[(Q_n, 2)]`` stacked view by view for the kernels: ``det
+    (Q, 2)`` and ``start (C + 1,)``, view ``n``'s rows being ``start[n]:start[n + 1]``."""
+    start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
+    det = np.ascontiguousarray(np.concatenate([np.asarray(d, float).reshape(-1, 2) for d in ideal])
+                               if len(ideal) else np.zeros((0, 2)))
+    return det, start
 
 
 def camera_arrays(cameras) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -427,8 +434,7 @@ class MarkerScorer:
     def set_detections(self, detections) -> None:
         """One frame's detections: per camera (Q_n, 2) observed pixels."""
         ideal = [ideal_pixels(c, d) for c, d in zip(self.cameras, detections)]
-        self.start = np.concatenate([[0], np.cumsum([len(d) for d in ideal])]).astype(np.int64)
-        self.det = np.ascontiguousarray(np.concatenate(ideal) if ideal else np.zeros((0, 2)))
+        self.det, self.start = stacked(ideal)
         self.E1, self.E2 = pair_distances(self.det, self.start, self.F)
         if self.cost == "both_ways" or self.candidates:
             self.supported, self.points, self.pair_points = _supported(
