@@ -74,7 +74,7 @@ from app.frame_shares import count_own
 from app.messages import EndOfStream, Heartbeat, MessageError, Stats
 from app.stats import summarise
 from app.hosts import PEER_TIMEOUT_S, Hosts, host_label
-from app.watchdog import DEFAULT_WATCHDOG_S, Watchdog
+from app.watchdog import DEFAULT_WATCHDOG_S, STACKS_SIGNAL, STACKS_WAIT_S, Watchdog
 from workers.base import ENDED_ENV, EXIT_INPUT, EXIT_STALLED, LAUNCHER_PID_ENV
 
 __all__ = ["Launcher", "RestartPolicy", "ERROR_DIR"]
@@ -299,6 +299,18 @@ class Launcher:
             except ProcessLookupError:
                 pass
 
+    def _kill(self, p: _Proc) -> None:
+        """SIGKILL, after asking for the worker's stacks (:data:`~app.watchdog.STACKS_SIGNAL`,
+        written to stderr): a worker killed because it would not stop says where it was."""
+        self._signal(p, STACKS_SIGNAL)
+        deadline = time.monotonic() + STACKS_WAIT_S
+        while time.monotonic() < deadline and p.popen.poll() is None:
+            time.sleep(0.05)
+        try:
+            p.popen.kill()
+        except ProcessLookupError:
+            pass
+
     def request_stop(self, hard: bool = False, user: bool = True) -> None:
         """First call: the sources end their input (the stream ends everywhere); a second
         call, or ``hard``: every worker is terminated."""
@@ -518,11 +530,8 @@ class Launcher:
         if why is None:
             return
         p.hung = why
-        print(f"smartroom: worker {p.name} is hung: {why}; killing it", file=sys.stderr)
-        try:
-            p.popen.kill()
-        except ProcessLookupError:
-            pass
+        print(f"smartroom: worker {p.name} is hung: {why}; killing it (its stacks follow)", file=sys.stderr)
+        self._kill(p)
 
     def _repeat_ends(self) -> None:
         """Say again, once a second, the end of stream of every worker that has ended
@@ -552,9 +561,9 @@ class Launcher:
                 self._stop_level = 3
             for p in self.procs:
                 if p.popen is not None and p.popen.poll() is None:
-                    print(f"smartroom: worker {p.name} still running {KILL_GRACE_S:.0f} s after SIGTERM; killed",
-                          file=sys.stderr)
-                    p.popen.kill()
+                    print(f"smartroom: worker {p.name} still running {KILL_GRACE_S:.0f} s after SIGTERM; killed"
+                          " (its stacks follow)", file=sys.stderr)
+                    self._kill(p)
 
     def _error_line(self, name: str) -> str:
         f = self.out / ERROR_DIR / f"{name}.error"
@@ -572,7 +581,7 @@ class Launcher:
             try:
                 p.rc = p.popen.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                p.popen.kill()
+                self._kill(p)
                 p.rc = p.popen.wait()
 
     # -- what happened ---------------------------------------------------------------

@@ -21,23 +21,29 @@ A worker that has not sent its first heartbeat since it was (re)started is given
 ``watchdog_s`` from its start, and at least :data:`FIRST_BEAT_S` (importing numpy, numba
 and OpenCV on a kiosk's cold disk, or beside a busy pipeline, takes seconds). The launcher kills a hung worker (SIGKILL: a stopped
 process ignores everything else) and restarts it like one that crashed, with the reason
-"hung" in ``stats.json``'s ``restarts``.
+"hung" in ``stats.json``'s ``restarts``. Before any SIGKILL of a worker (hung, or still
+running after SIGTERM) it sends :data:`STACKS_SIGNAL`: every worker has Python's
+``faulthandler`` write all its threads' stacks to stderr on it (the launcher's stderr),
+so a hang leaves its cause behind.
 
 Pure Python over a clock passed in (unit-tested alone); the launcher feeds it.
 """
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import dataclass
 
 from app.messages import Heartbeat
 
-__all__ = ["Watchdog", "DEFAULT_WATCHDOG_S"]
+__all__ = ["Watchdog", "DEFAULT_WATCHDOG_S", "STACKS_SIGNAL", "STACKS_WAIT_S"]
 
 DEFAULT_WATCHDOG_S = 30.0   # a loop standing still this long with input waiting is hung
 FIRST_BEAT_S = 60.0         # the least a (re)started worker is given for its first heartbeat
 SILENCE_NOTE_S = 5.0        # a gap between heartbeats longer than this is kept as a silence
 MAX_SILENCES = 20           # per worker, the latest
+STACKS_SIGNAL = signal.SIGUSR1   # a worker writes every thread's stack to stderr on it
+STACKS_WAIT_S = 0.5         # given to write them before the SIGKILL
 
 
 @dataclass

@@ -89,3 +89,23 @@ class CompilingStage(Worker):
             with event.trigger_event("numba:compile", data={"dispatcher": None, "args": (), "return_type": None}):
                 time.sleep(self.params["compile_s"])
         self.publish(self.keys.stage("compiling"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))
+
+
+class StuckStage(Worker):
+    """Consumes voxels; its first incarnation gets stuck on frame ``at`` in
+    :meth:`stuck_for_good` (a call that never returns, deaf to SIGTERM)."""
+
+    KIND = "stuck"
+    ORDER = 3
+    CONSUMES = ("voxels",)
+    PRODUCES = ("stuck",)
+    DEFAULTS = {"at": 10}
+
+    def handle(self, key, msg):
+        if self.incarnation == 0 and msg.frame == self.params["at"]:
+            self.stuck_for_good()
+        self.publish(self.keys.stage("stuck"), Ack(frame=msg.frame, stamp=msg.stamp, t=msg.t, worker=self.name))
+
+    def stuck_for_good(self):
+        while True:
+            time.sleep(0.1)

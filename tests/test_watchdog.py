@@ -127,6 +127,31 @@ def test_a_stage_stopped_offline_is_restarted_and_the_run_completes(tmp_path):
 
 
 @pytest.mark.integration
+def test_a_stage_stuck_in_a_call_leaves_its_stacks_when_killed(tmp_path):
+    """A stage stuck in a call that never returns (deaf to SIGTERM, its heartbeats going on)
+    is killed as hung, and before the kill it writes every thread's stack to the
+    launcher's stderr: the cause of a hang is left behind. The run still completes."""
+    rec = write_tiny_recording(tmp_path / "rec", frames=100)
+    out = tmp_path / "out"
+    layout = write_layout(tmp_path / "layout.yaml", restarts={"watchdog_s": 3}, extra_workers=[
+        {"name": "stuck", "kind": "tests.fault_stages:StuckStage", "params": {"at": 10}}])
+    proc = start_smartroom("run", "--recording", rec, "--headless", "--layout", layout, "--out", out)
+    try:
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "worker stuck is hung" in err, err
+    stacks = err.split("worker stuck is hung", 1)[1]
+    assert "most recent call first" in stacks and "stuck_for_good" in stacks, err
+    assert proc.returncode == 0, err
+    s = stats_of(out)
+    assert s["complete"] is True, s.get("reasons")
+    assert [f.get("reason") for f in s["restarts"]["stuck"]["failures"]] == ["hung"]
+    assert s["stages"]["stuck"]["frames_out"] == 100
+
+
+@pytest.mark.integration
 def test_a_stage_stopped_live_is_restarted_and_delivers_again(tmp_path):
     """Live cameras: the segmentation stopped for good is killed and restarted, and frames
     flow to the end again (the stages after it jump to the newest frames)."""

@@ -24,6 +24,7 @@ def add_arguments(p) -> None:
 
 
 def main(args) -> int:
+    import faulthandler
     import logging
     import signal
 
@@ -32,6 +33,11 @@ def main(args) -> int:
     early: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: early.append(signum))
+    # the launcher asks for every thread's stack before it kills a worker that would not
+    # stop (hung, or deaf to SIGTERM): the stacks reach its stderr, where the cause shows
+    from app.watchdog import STACKS_SIGNAL
+
+    faulthandler.register(STACKS_SIGNAL, all_threads=True, chain=False)
 
     from app.config import load_layout
     from app.errors import InputError, Stalled
