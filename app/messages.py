@@ -337,20 +337,7 @@ class Voxels(Message):
         misses = _array(self, "misses", "|u1", (n,), allow_empty=True)
         if misses.size and int(misses.max()) > max(len(self.cameras), 1):
             raise MessageError("Voxels: misses exceed the number of cameras")
-        sil = _array(self, "silhouettes", "|u1", (None,), allow_empty=True)
-        sizes = self.silhouette_sizes
-        if not sil.size:
-            if sizes:
-                raise MessageError("Voxels: silhouette_sizes without silhouettes")
-            return
-        if (not isinstance(sizes, list) or len(sizes) != len(self.cameras)
-                or not all(isinstance(wh, list) and len(wh) == 2
-                           and all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= _MAX_SIDE for v in wh)
-                           for wh in sizes)):
-            raise MessageError("Voxels: silhouette_sizes is not one [width, height] per camera")
-        need = sum(h * ((w + 7) // 8) for w, h in sizes)
-        if sil.shape != (need,):
-            raise MessageError(f"Voxels: silhouettes hold {sil.size} bytes, their sizes need {need}")
+        check_silhouettes(self)
 
     def with_silhouettes(self, masks: list) -> "Voxels":
         """Attach the boolean masks (one per camera of ``cameras``, in order) as silhouettes."""
@@ -361,21 +348,47 @@ class Voxels(Message):
 
     def silhouette_masks(self) -> list:
         """The silhouettes as boolean (h, w) arrays, one per camera of ``cameras``; [] when none."""
-        if self.silhouettes is None or not self.silhouettes.size:
-            return []
-        out, at = [], 0
-        for w, h in self.silhouette_sizes:
-            row = (w + 7) // 8
-            bits = np.asarray(self.silhouettes[at:at + h * row]).reshape(h, row)
-            out.append(np.unpackbits(bits, axis=1, count=w).view(bool))
-            at += h * row
-        return out
+        return silhouette_masks(self)
 
     def centres(self, where=None) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3); ``where``: a boolean mask or index
         array, the centres of those voxels alone (the same values as ``centres()[where]``)."""
         idx = self.indices if where is None else self.indices[where]
         return np.asarray(self.origin) + (idx.astype(np.float64) + 0.5) * self.voxel_size
+
+
+def check_silhouettes(msg) -> None:
+    """Validate the bit-packed ``silhouettes`` and their ``silhouette_sizes`` that
+    :class:`Voxels` and :class:`Blobs` carry (both may be empty)."""
+    cls = type(msg).__name__
+    sil = _array(msg, "silhouettes", "|u1", (None,), allow_empty=True)
+    sizes = msg.silhouette_sizes
+    if not sil.size:
+        if sizes:
+            raise MessageError(f"{cls}: silhouette_sizes without silhouettes")
+        return
+    if (not isinstance(sizes, list) or len(sizes) != len(msg.cameras)
+            or not all(isinstance(wh, list) and len(wh) == 2
+                       and all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= _MAX_SIDE for v in wh)
+                       for wh in sizes)):
+        raise MessageError(f"{cls}: silhouette_sizes is not one [width, height] per camera")
+    need = sum(h * ((w + 7) // 8) for w, h in sizes)
+    if sil.shape != (need,):
+        raise MessageError(f"{cls}: silhouettes hold {sil.size} bytes, their sizes need {need}")
+
+
+def silhouette_masks(msg) -> list:
+    """The ``silhouettes`` of a (validated) :class:`Voxels` or :class:`Blobs` as boolean
+    (h, w) arrays, one per camera of ``cameras``; [] when none."""
+    if msg.silhouettes is None or not msg.silhouettes.size:
+        return []
+    out, at = [], 0
+    for w, h in msg.silhouette_sizes:
+        row = (w + 7) // 8
+        bits = np.asarray(msg.silhouettes[at:at + h * row]).reshape(h, row)
+        out.append(np.unpackbits(bits, axis=1, count=w).view(bool))
+        at += h * row
+    return out
 
 
 def check_voxel_fields(msg) -> int:
@@ -529,10 +542,15 @@ class Blobs(Message):
     :class:`Voxels`, so the tracker needs no second stream), the component ``labels`` (N,)
     int32 of each voxel, the ``features`` (K, len(FEATURES)) float32 of each component
     (Table 4.1 first, then the centroid and size) and the classifier's ``person`` verdict
-    (K,) uint8 (1 = person)."""
+    (K,) uint8 (1 = person). ``silhouettes`` and ``silhouette_sizes``: the frame's
+    silhouettes as the voxels brought them (:class:`Voxels`; empty when they had none),
+    for the tracker's ghost test. Added after the first builds: their payloads decode
+    with them empty."""
 
     TYPE_ID: ClassVar[int] = 10
-    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "labels", "features", "person")
+    ARRAYS: ClassVar[tuple[str, ...]] = ("indices", "colours", "surface", "labels", "features", "person",
+                                         "silhouettes")
+    ADDED_ARRAYS: ClassVar[int] = 1
     #: weight (kg), z-centroid, top, height, larger and smaller horizontal extent (m;
     #: Table 4.1), then the centroid x, y (m) and the voxel count
     FEATURES: ClassVar[tuple[str, ...]] = ("weight", "z_centroid", "top", "height", "extent_major",
@@ -541,12 +559,14 @@ class Blobs(Message):
     origin: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     dims: list = field(default_factory=lambda: [0, 0, 0])
     cameras: list = field(default_factory=list)
+    silhouette_sizes: list = field(default_factory=list)
     indices: np.ndarray = None
     colours: np.ndarray = None
     surface: np.ndarray = None
     labels: np.ndarray = None
     features: np.ndarray = None
     person: np.ndarray = None
+    silhouettes: np.ndarray = None
 
     def validate(self) -> None:
         """Raise :class:`MessageError` unless shapes, dtypes and labels are consistent."""
@@ -560,6 +580,11 @@ class Blobs(Message):
         if n and (lab.min() < 0 or lab.max() >= k):
             raise MessageError(f"Blobs: labels outside 0 .. {k - 1}")
         _array(self, "person", "|u1", (k,), allow_empty=k == 0)
+        check_silhouettes(self)
+
+    def silhouette_masks(self) -> list:
+        """The silhouettes as boolean (h, w) arrays, one per camera of ``cameras``; [] when none."""
+        return silhouette_masks(self)
 
     def centres(self, where=None) -> np.ndarray:
         """World coordinates of the voxel centres (N, 3); ``where``: a boolean mask or index

@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from app.messages import Blobs, MessageError, decode
+from app.messages import Blobs, MessageError, Voxels, decode
 from app.tracking.blobs import FEATURES, ComponentAnalysis, component_features
+from tests.payloads import older_payload
 
 
 def _box(i0, j0, k0, ni, nj, nk):
@@ -52,6 +53,25 @@ def test_blobs_round_trip_and_validate():
     msg.validate()
     assert isinstance(msg, Blobs) and msg.frame == 3 and msg.features.shape == (1, len(FEATURES))
     assert np.allclose(msg.centres().mean(axis=0), [0.25, 0.25, 0.3])
+
+
+def test_blobs_carry_the_voxels_silhouettes_and_older_blobs_decode_without():
+    """The CCA worker passes the voxels' silhouettes on (the tracker's ghost test): they
+    round-trip, a Blobs of the build before (six arrays) decodes with none, and sizes
+    that do not match the bytes are refused."""
+    masks = [np.eye(5, 12, dtype=bool)]
+    msg = _blobs()
+    msg.silhouette_sizes, msg.silhouettes = Voxels(cameras=["cam0"]).with_silhouettes(masks).silhouette_sizes, \
+        Voxels(cameras=["cam0"]).with_silhouettes(masks).silhouettes
+    back = decode(msg.to_bytes())
+    back.validate()
+    np.testing.assert_array_equal(back.silhouette_masks()[0], masks[0])
+    old = decode(older_payload(_blobs(), "silhouette_sizes"))
+    old.validate()
+    assert old.silhouette_masks() == [] and np.array_equal(old.labels, msg.labels)
+    msg.silhouette_sizes = [[12, 6]]
+    with pytest.raises(MessageError, match="silhouettes hold"):
+        decode(msg.to_bytes()).validate()
 
 
 @pytest.mark.parametrize("field,value", [

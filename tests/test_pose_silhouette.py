@@ -14,6 +14,7 @@ from app.pose.model import DOF, BodyModel, neutral_state
 from app.pose.offline import clip_errors, run_clip, simulated_clip
 from app.pose.silhouette import SilhouetteView, silhouette_coverage
 from app.segmentation import reduce_mask
+from tests.payloads import older_payload
 
 HEIGHT = 1.75
 
@@ -43,23 +44,7 @@ def test_silhouettes_travel_with_the_voxels():
 def test_voxels_of_an_older_build_decode_without_silhouettes():
     """A payload without the added array (four arrays, the earlier Voxels) still decodes."""
     msg = _voxels()
-    payload = encode(msg)
-    # rebuild it as the earlier build wrote it: one array fewer, no silhouette_sizes
-    import json
-    import struct
-    fmt = "<3sBBBHqddI"
-    head = list(struct.unpack_from(fmt, payload, 0))
-    size = struct.calcsize(fmt)
-    meta = json.loads(payload[size:size + head[-1]])
-    del meta["m"]["silhouette_sizes"]
-    meta["a"] = meta["a"][:4]
-    body = payload[size + head[-1]:]
-    old_meta = json.dumps(meta, separators=(",", ":")).encode()
-    # the arrays keep their offsets when the meta keeps its length modulo 8
-    old_meta += b" " * ((head[-1] - len(old_meta)) % 8)
-    head[4], head[-1] = 4, len(old_meta)
-    old = struct.pack(fmt, *head) + old_meta + body
-    back = decode(old)
+    back = decode(older_payload(msg, "silhouette_sizes"))
     back.validate()
     assert back.silhouette_masks() == [] and back.silhouette_sizes == []
     np.testing.assert_array_equal(back.indices, msg.indices)

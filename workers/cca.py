@@ -62,7 +62,9 @@ class ComponentAnalysis(Worker):
         self.publish(self.keys.blobs(), Blobs(
             epoch=msg.epoch, frame=msg.frame, stamp=msg.stamp, t=msg.t, voxel_size=msg.voxel_size, origin=list(msg.origin),
             dims=list(msg.dims), cameras=list(msg.cameras), indices=np.ascontiguousarray(idx, dtype=np.uint16),
-            colours=colours, surface=surface, labels=labels, features=feats, person=person))
+            colours=colours, surface=surface, labels=labels, features=feats, person=person,
+            silhouette_sizes=list(msg.silhouette_sizes),   # passed on packed, for the tracker's ghost test
+            silhouettes=msg.silhouettes if msg.silhouettes is not None else np.zeros(0, np.uint8)))
 
     def extra_figures(self) -> dict:
         c, p = getattr(self, "components", ()), getattr(self, "persons", ())

@@ -49,6 +49,8 @@ class Tracking(Worker):
                                    # background's ghost of a person who stood still; app.tracking.tracker; 0: off)
         "ghosts": True,            # no new track on a blob where other people's silhouette cones cross
                                    # (app.tracking.ghosts; needs the run's calibration; false: the thesis)
+        "ghost_silhouettes": True,  # ... a camera is its witness only where its silhouette shows it (the
+                                    # silhouettes the voxels bring; false: the voxels' projections alone)
         "snapshot_frames": 4,      # the tracker's state is saved every this many frames (and every 0.5 s)
         "seed": 0,
     }
@@ -135,8 +137,10 @@ class Tracking(Worker):
         if gkey != self.grid_key:
             self.occupancy = OccupancyIndex(gkey)
             self.grid_key = gkey
+        masks = msg.silhouette_masks() if self.params["ghost_silhouettes"] and self.ghost_test is not None else []
         return SceneFrame(msg.frame, msg.t, msg.indices, msg.colours, msg.surface, msg.labels, msg.features,
-                          msg.person, msg.origin, msg.voxel_size, self.occupancy)
+                          msg.person, msg.origin, msg.voxel_size, self.occupancy,
+                          dict(zip(msg.cameras, masks)) if masks else None)
 
     def _update(self, msg: Blobs):
         """The tracker takes in one frame (after a gap since a restored snapshot, it first

@@ -46,7 +46,8 @@ def _tracks(msgs, calibration) -> dict:
     from app.tracking.offline import VoxelFrame, track_frames
     from app.tracking.tracker import TrackerParams
 
-    frames = [VoxelFrame(m.frame, m.t, m.indices.reshape(-1, 3), m.colours, m.surface) for m in msgs]
+    frames = [VoxelFrame(m.frame, m.t, m.indices.reshape(-1, 3), m.colours, m.surface,
+                         dict(zip(m.cameras, m.silhouette_masks())) or None) for m in msgs]
     grid = {"origin": list(msgs[0].origin), "dims": list(msgs[0].dims), "voxel_size": float(msgs[0].voxel_size)}
     return dict(track_frames(frames, grid, TrackerParams(), load_tree(DEFAULT_TREE), calibration=calibration).items())
 

@@ -17,13 +17,16 @@ __all__ = ["VoxelFrame", "recording_voxels"]
 
 
 class VoxelFrame:
-    """One frame's voxels: ``frame, t, indices (N,3) uint16, colours (N,3) uint8, surface (N,) bool``."""
+    """One frame's voxels: ``frame, t, indices (N,3) uint16, colours (N,3) uint8, surface (N,) bool``
+    and the silhouettes they were carved from (camera name -> boolean mask, or None),
+    for the ghost test."""
 
-    __slots__ = ("frame", "t", "indices", "colours", "surface")
+    __slots__ = ("frame", "t", "indices", "colours", "surface", "silhouettes")
 
-    def __init__(self, frame, t, indices, colours, surface):
+    def __init__(self, frame, t, indices, colours, surface, silhouettes: dict | None = None):
         self.frame, self.t = int(frame), float(t)
         self.indices, self.colours, self.surface = indices, colours, surface
+        self.silhouettes = silhouettes
 
 
 def _code_version() -> str:
@@ -50,7 +53,8 @@ def recording_voxels(recording, voxel_size: float, frames: int | None = None, ca
     """The voxels of the first ``frames`` frames of ``recording`` (all by default) and the
     grid ``{"origin", "dims", "voxel_size"}``, carved with the occupancy test ``carving``
     (``tolerance``, ``min_views``, ``miss_support``; default: the pipeline's,
-    :data:`app.reconstruction.PIPELINE_CARVING`)."""
+    :data:`app.reconstruction.PIPELINE_CARVING`). The frames carry no silhouettes (the
+    cache keeps voxels only): their ghost test asks the voxels' projections alone."""
     from app.reconstruction import PIPELINE_CARVING
 
     recording = Path(recording)
@@ -141,7 +145,7 @@ def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict
         labels, feats, person = cca(v.indices)
         c1, t1 = time.thread_time(), time.perf_counter()
         scene = SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person,
-                           grid["origin"], grid["voxel_size"], occupancy)
+                           grid["origin"], grid["voxel_size"], occupancy, getattr(v, "silhouettes", None))
         out[v.frame] = tracker.update(scene)
         c2, t2 = time.thread_time(), time.perf_counter()
         if timings is not None:

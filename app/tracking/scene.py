@@ -94,8 +94,11 @@ class SceneFrame:
     """What the filters need of one frame (see module docstring)."""
 
     def __init__(self, frame: int, t: float, indices, colours, surface, labels, features, person,
-                 origin, voxel_size: float, occupancy: OccupancyIndex | None = None):
+                 origin, voxel_size: float, occupancy: OccupancyIndex | None = None, silhouettes: dict | None = None):
         self.frame, self.t = int(frame), float(t)
+        #: the frame's silhouettes (camera name -> boolean mask, reduced as the
+        #: reconstruction sends them) for the ghost test, or None
+        self.silhouettes = silhouettes
         idx = np.asarray(indices).reshape(-1, 3)   # any integer type (the bus's uint16 kept: no copy)
         if idx.dtype.kind not in "iu" or not idx.flags.c_contiguous:
             idx = np.ascontiguousarray(idx, dtype=np.int64)

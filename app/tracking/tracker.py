@@ -202,6 +202,7 @@ class MultiTracker:
         #: (:class:`~app.tracking.ghosts.GhostTest`); None: no such test (the thesis)
         self.ghost_test = ghost_test
         self.ghosts = 0   # candidate sightings the ghost test turned away
+        self._seen = None
         self.rng = np.random.default_rng(self.p.seed)
         self.tracks: list[_Track] = []
         self.candidates: list[tuple[np.ndarray, int, int]] = []   # (centre, sightings, sure sightings)
@@ -538,7 +539,8 @@ class MultiTracker:
             return False                                   # nobody else: no ghost of anyone
         if self._known_counts is None:                     # the people projected once a frame
             self._known_counts = self.ghost_test.counts(self._known_centres)
-        if self.ghost_test.verdict(scene.centres_at(mine), self._known_counts, minus):
+            self._seen = self.ghost_test.seen_cells(scene.silhouettes)   # where the frame brought them
+        if self.ghost_test.verdict(scene.centres_at(mine), self._known_counts, minus, self._seen):
             self.ghosts += 1
             return True
         return False
