@@ -139,10 +139,10 @@ class GhostTest:
         if len(mine) == 0:
             return False
         shares = self.own_shares(mine, counts, minus, seen)
-        seen = shares[np.isfinite(shares)]
-        if not len(seen):
+        judged = shares[np.isfinite(shares)]
+        if not len(judged):
             return False
-        return int((seen >= self.min_own).sum()) < min(self.min_cameras, len(seen))
+        return int((judged >= self.min_own).sum()) < min(self.min_cameras, len(judged))
 
 
 @njit(cache=True, nogil=True)
