@@ -56,7 +56,13 @@ def test_a_forked_process_is_the_launchers_child_with_its_own_command_line(serve
         stat = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
         assert int(stat[1]) == os.getpid()                      # adopted: this process waits for it
         assert int(stat[3]) == proc.pid                         # a session of its own (sid)
-        cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes().split(b"\0")
+        # the worker names itself just after the fork (the pid comes back before): a moment later
+        deadline = time.monotonic() + 5.0
+        while True:
+            cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes().split(b"\0")
+            if cmdline[1:3] == [b"-m", b"app.cli"] or time.monotonic() > deadline:
+                break
+            time.sleep(0.01)
         assert cmdline[1:5] == [b"-m", b"app.cli", b"simulate", b"--scene"]
         assert os.readlink(f"/proc/{proc.pid}/cwd") == str(tmp_path)
         time.sleep(0.5)
