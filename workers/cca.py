@@ -64,7 +64,7 @@ class ComponentAnalysis(Worker):
             dims=list(msg.dims), cameras=list(msg.cameras), indices=np.ascontiguousarray(idx, dtype=np.uint16),
             colours=colours, surface=surface, labels=labels, features=feats, person=person,
             silhouette_sizes=list(msg.silhouette_sizes),   # passed on packed, for the tracker's ghost test
-            silhouettes=msg.silhouettes if msg.silhouettes is not None else np.zeros(0, np.uint8)))
+            silhouettes=msg.silhouettes))
 
     def extra_figures(self) -> dict:
         c, p = getattr(self, "components", ()), getattr(self, "persons", ())

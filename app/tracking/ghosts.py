@@ -57,6 +57,7 @@ class GhostTest:
         self.min_own = float(min_own)
         self.min_cells = int(min_cells)
         self._kernel = np.ones((3, 3), np.uint8)
+        self._covers: dict = {}   # (camera, silhouette size) -> the cells' rows and columns (_cover)
 
     def _cells(self, camera, centres: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
         w, h = -(-int(camera.width) // self.cell), -(-int(camera.height) // self.cell)
@@ -90,16 +91,32 @@ class GhostTest:
             if mask is None:
                 out.append(None)
                 continue
-            w, h = -(-int(cam.width) // self.cell), -(-int(cam.height) // self.cell)
-            full = cv2.resize(np.asarray(mask, np.uint8), (int(cam.width), int(cam.height)),
-                              interpolation=cv2.INTER_NEAREST)
-            padded = np.zeros((h * self.cell, w * self.cell), np.uint8)
-            padded[:full.shape[0], :full.shape[1]] = full
-            seen = padded.reshape(h, self.cell, w, self.cell).max(axis=(1, 3))
+            rows, cols = self._cover(cam, mask.shape)
+            seen = ((rows @ np.asarray(mask, np.float32) @ cols) > 0).astype(np.uint8)
             if self.seen_grow > 0:
                 seen = cv2.dilate(seen, np.ones((2 * self.seen_grow + 1,) * 2, np.uint8))
             out.append(seen.reshape(-1) > 0)
         return out
+
+    def _cover(self, camera, shape) -> tuple[np.ndarray, np.ndarray]:
+        """Which rows ``(h, H')`` and columns ``(W', w)`` of a silhouette of ``shape``
+        (H', W') each cell covers, as 0/1 matrices: a cell holds foreground when
+        ``rows @ mask @ cols`` > 0, as it does in the silhouette enlarged to the image
+        (nearest pixel, OpenCV's) and taken cell by cell, without enlarging it each frame
+        (8 cameras: 6.8 ms a frame that way). Cached per camera and size."""
+        key = (camera.name, tuple(shape))
+        if key not in self._covers:
+            W, H = int(camera.width), int(camera.height)
+            h, w = -(-H // self.cell), -(-W // self.cell)
+            # the silhouette's row and column under each image pixel, by the resize itself
+            ys = cv2.resize(np.arange(shape[0], dtype=np.float32)[:, None], (1, H), interpolation=cv2.INTER_NEAREST)
+            xs = cv2.resize(np.arange(shape[1], dtype=np.float32)[None, :], (W, 1), interpolation=cv2.INTER_NEAREST)
+            rows = np.zeros((h, shape[0]), np.float32)
+            rows[np.arange(H) // self.cell, ys.ravel().astype(np.int64)] = 1.0
+            cols = np.zeros((shape[1], w), np.float32)
+            cols[xs.ravel().astype(np.int64), np.arange(W) // self.cell] = 1.0
+            self._covers[key] = rows, cols
+        return self._covers[key]
 
     def own_shares(self, mine: np.ndarray, counts: list, minus: np.ndarray | None = None,
                    seen: list | None = None) -> np.ndarray:

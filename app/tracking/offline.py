@@ -145,7 +145,7 @@ def track_frames(frames, grid: dict, params=None, classifier=None, timings: dict
         labels, feats, person = cca(v.indices)
         c1, t1 = time.thread_time(), time.perf_counter()
         scene = SceneFrame(v.frame, v.t, v.indices, v.colours, v.surface, labels, feats, person,
-                           grid["origin"], grid["voxel_size"], occupancy, getattr(v, "silhouettes", None))
+                           grid["origin"], grid["voxel_size"], occupancy, v.silhouettes)
         out[v.frame] = tracker.update(scene)
         c2, t2 = time.thread_time(), time.perf_counter()
         if timings is not None:
