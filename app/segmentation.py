@@ -147,8 +147,61 @@ def _masked_median(stack, masked, previous, min_count, out, uncertain):
                 out[y, x, c] = v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
 
 
+@njit(cache=True, nogil=True)
+def _agreeing(stack, y, x, ref, threshold):
+    """How many frames of ``stack`` at pixel (y, x) are within ``threshold`` of ``ref`` (every channel)."""
+    n, _, _, ch = stack.shape
+    k = 0
+    for u in range(n):
+        ok = True
+        for c in range(ch):
+            if abs(np.int32(stack[u, y, x, c]) - np.int32(ref[c])) > threshold:
+                ok = False
+                break
+        k += ok
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _largest_agreeing(stack, threshold, min_count, out, uncertain):
+    """Per pixel where no majority of the frames agrees with the estimate ``out``: the
+    largest group of frames that agree with one of them (every channel within
+    ``threshold``), when it is larger than the group that agrees with the estimate and
+    holds ``min_count`` frames at least; its per-channel median replaces the estimate
+    (and the pixel is no longer ``uncertain``)."""
+    n, h, w, ch = stack.shape
+    vals = np.empty(n, dtype=np.uint8)
+    for y in range(h):
+        for x in range(w):
+            have = _agreeing(stack, y, x, out[y, x], threshold)
+            if 2 * have > n:
+                continue
+            best, best_t = have, -1
+            for t in range(n):
+                k = _agreeing(stack, y, x, stack[t, y, x], threshold)
+                if k > best:
+                    best, best_t = k, t
+            if best_t < 0 or best < min_count:
+                continue
+            uncertain[y, x] = False
+            ref = stack[best_t, y, x].copy()
+            for c in range(ch):
+                k = 0
+                for u in range(n):
+                    ok = True
+                    for d in range(ch):
+                        if abs(np.int32(stack[u, y, x, d]) - np.int32(ref[d])) > threshold:
+                            ok = False
+                            break
+                    if ok:
+                        vals[k] = stack[u, y, x, c]
+                        k += 1
+                v = np.sort(vals[:k])
+                out[y, x, c] = v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
+
+
 def estimate_background_robust(images, iterations: int = 2, threshold: int = 24, grow_px: int = 9,
-                               min_share: float = 0.15) -> tuple[np.ndarray, float]:
+                               min_share: float = 0.15, mode: bool = True) -> tuple[np.ndarray, float]:
     """Empty-room image of a recording with people in it: ``(background, uncertain)``.
 
     Starts from the per-pixel temporal median of the frames (BGR, spread over the
@@ -161,6 +214,18 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
     them differ from the room and are left out. Where fewer than ``min_share`` of the
     frames are left (someone there almost all the time) the pixel keeps the earlier
     estimate and counts as uncertain; ``uncertain`` is that share of the image.
+
+    With ``mode`` (the default; False: the estimate as it was before 2026-12-02), a
+    last pass mends the pixels where people passed in most of the frames, each in other
+    clothes: the median is then a mixture that no frame shows (a smeared ghost, false
+    foreground in every frame), and the masking above cannot leave those frames out,
+    since all of them differ from it. Where no majority of the frames agrees with the
+    estimate, the largest group of frames that agree with one another (every channel
+    within ``threshold``) takes its place, when that group is larger than the one that
+    agrees with the estimate and holds ``min_share`` of the frames: the room, seen
+    between the passers-by (:func:`_largest_agreeing`). A person who stood still in most
+    frames is a majority and stays in the estimate, as before (the other cameras' views
+    paint them out, :mod:`app.background_views`).
     """
     stack = np.ascontiguousarray(np.stack(list(images)))
     n = len(stack)
@@ -179,6 +244,8 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
         out = np.empty_like(background)
         _masked_median(stack, masked, background, min_count, out, uncertain)
         background = out
+    if mode:
+        _largest_agreeing(stack, threshold, min_count, background, uncertain)
     return background, float(uncertain.mean())
 
 
@@ -378,11 +445,12 @@ def floor_region(camera, room_min, room_max, scale: int = 1, step: float = 0.01)
     return out.view(bool)
 
 
-def recording_backgrounds(recording, frames: int = 25, still_people: bool = True, log=None, status=None) -> dict:
+def recording_backgrounds(recording, frames: int = 25, still_people: bool = True, log=None, status=None,
+                          passers_by: bool = True) -> dict:
     """Every camera's background of a recording (camera -> BGR image), as the
     segmentation worker makes them: the ``background/`` image where there is one, else the
     estimate from ``frames`` frames with the people left out
-    (:func:`estimate_background_robust`); with ``still_people``, the people who stood
+    (:func:`estimate_background_robust`; ``passers_by``: its ``mode``); with ``still_people``, the people who stood
     still through most of the recording, and so are in those estimates, are found with
     the other cameras' views of the room and painted out of them
     (:mod:`app.background_views`). ``log``: a logger told what was estimated and found;
@@ -395,7 +463,7 @@ def recording_backgrounds(recording, frames: int = 25, still_people: bool = True
         if background is None:
             if status is not None:
                 status(f"estimating the background of {cam} from {frames} frames of the recording")
-            background, uncertain = estimate_background_robust(recording.sample(cam, frames))
+            background, uncertain = estimate_background_robust(recording.sample(cam, frames), mode=passers_by)
             estimated.add(cam)
             if log is not None:
                 log.warning("camera %s: no background image; estimated from %d frames of the recording with the "

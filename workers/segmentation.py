@@ -5,7 +5,8 @@ downscaled colour image that voxel colouring needs.
 
 The background model starts from the recording's ``background/<cam>.png`` when there
 is one; otherwise from the per-pixel temporal median of frames spread across the
-recording (real sessions rarely have empty-room shots), and people who stood still
+recording (real sessions rarely have empty-room shots; where people passed in most of
+those frames, the room the frames agree on, ``passers_by``), and people who stood still
 through most of the recording, and so are in that median, are found with the other
 cameras' views of the room and painted out of it (``still_people``,
 :mod:`app.background_views`); live cameras learn it from the stream.
@@ -100,6 +101,8 @@ class Segmentation(Worker):
         "colour_scale": -1,          # colour image at 1/colour_scale (-1: as the mask, 0: none)
         "median_frames": 25,         # frames for the median background when there is no image
         "still_people": True,        # ... and people standing still in it found with the other cameras, painted out
+        "passers_by": True,          # ... and where people passed in most of its frames, the room the frames agree on
+                                     # (False: the masked median alone, the build before 2026-12-02)
         "markers": "",               # the markers' chroma model: also detect them (recording: its markers.json)
         "rebuild_images": 2000,      # restarted on a recording: the models take again at most this many of the
                                      # images before, over the cameras (20 s of 4 cameras at 25 fps, ~7 s of work
@@ -154,7 +157,8 @@ class Segmentation(Worker):
             return None
         if self.backgrounds is None:
             self.backgrounds = recording_backgrounds(self.recording, self.params["median_frames"],
-                                                     bool(self.params["still_people"]), self.log, self.status)
+                                                     bool(self.params["still_people"]), self.log, self.status,
+                                                     passers_by=bool(self.params["passers_by"]))
         return self.backgrounds[cam]
 
     def _segmenter(self, cam: str) -> CameraSegmenter:
