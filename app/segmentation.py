@@ -120,6 +120,13 @@ def estimate_background(images) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _median_u8(vals, k):
+    """The median of ``vals[:k]`` (uint8; the rounded mean of the middle two for an even count)."""
+    v = np.sort(vals[:k])
+    return v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
+
+
+@njit(cache=True, nogil=True)
 def _masked_median(stack, masked, previous, min_count, out, uncertain):
     """Per pixel and channel, the median of the frames where the pixel is not masked;
     where fewer than ``min_count`` frames are left, the previous estimate (uncertain)."""
@@ -143,22 +150,24 @@ def _masked_median(stack, masked, previous, min_count, out, uncertain):
                     if not masked[t, y, x]:
                         vals[k] = stack[t, y, x, c]
                         k += 1
-                v = np.sort(vals[:k])
-                out[y, x, c] = v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
+                out[y, x, c] = _median_u8(vals, k)
+
+
+@njit(cache=True, nogil=True)
+def _agrees(stack, t, y, x, ref, threshold):
+    """Whether frame ``t`` of ``stack`` at pixel (y, x) is within ``threshold`` of ``ref`` in every channel."""
+    for c in range(stack.shape[3]):
+        if abs(np.int32(stack[t, y, x, c]) - np.int32(ref[c])) > threshold:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True)
 def _agreeing(stack, y, x, ref, threshold):
     """How many frames of ``stack`` at pixel (y, x) are within ``threshold`` of ``ref`` (every channel)."""
-    n, _, _, ch = stack.shape
     k = 0
-    for u in range(n):
-        ok = True
-        for c in range(ch):
-            if abs(np.int32(stack[u, y, x, c]) - np.int32(ref[c])) > threshold:
-                ok = False
-                break
-        k += ok
+    for t in range(stack.shape[0]):
+        k += _agrees(stack, t, y, x, ref, threshold)
     return k
 
 
@@ -171,6 +180,7 @@ def _largest_agreeing(stack, threshold, min_count, out, uncertain):
     (and the pixel is no longer ``uncertain``)."""
     n, h, w, ch = stack.shape
     vals = np.empty(n, dtype=np.uint8)
+    group = np.empty(n, dtype=np.int64)
     for y in range(h):
         for x in range(w):
             have = _agreeing(stack, y, x, out[y, x], threshold)
@@ -185,19 +195,15 @@ def _largest_agreeing(stack, threshold, min_count, out, uncertain):
                 continue
             uncertain[y, x] = False
             ref = stack[best_t, y, x].copy()
+            m = 0
+            for t in range(n):
+                if _agrees(stack, t, y, x, ref, threshold):
+                    group[m] = t
+                    m += 1
             for c in range(ch):
-                k = 0
-                for u in range(n):
-                    ok = True
-                    for d in range(ch):
-                        if abs(np.int32(stack[u, y, x, d]) - np.int32(ref[d])) > threshold:
-                            ok = False
-                            break
-                    if ok:
-                        vals[k] = stack[u, y, x, c]
-                        k += 1
-                v = np.sort(vals[:k])
-                out[y, x, c] = v[k // 2] if k % 2 else (np.int32(v[k // 2 - 1]) + np.int32(v[k // 2]) + 1) // 2
+                for i in range(m):
+                    vals[i] = stack[group[i], y, x, c]
+                out[y, x, c] = _median_u8(vals, m)
 
 
 def estimate_background_robust(images, iterations: int = 2, threshold: int = 24, grow_px: int = 9,
