@@ -207,7 +207,7 @@ def _largest_agreeing(stack, threshold, min_count, out, uncertain):
 
 
 def estimate_background_robust(images, iterations: int = 2, threshold: int = 24, grow_px: int = 9,
-                               min_share: float = 0.15, mode: bool = True) -> tuple[np.ndarray, float]:
+                               min_share: float = 0.15, passers_by: bool = True) -> tuple[np.ndarray, float]:
     """Empty-room image of a recording with people in it: ``(background, uncertain)``.
 
     Starts from the per-pixel temporal median of the frames (BGR, spread over the
@@ -221,7 +221,7 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
     frames are left (someone there almost all the time) the pixel keeps the earlier
     estimate and counts as uncertain; ``uncertain`` is that share of the image.
 
-    With ``mode`` (the default; False: the estimate as it was before 2026-12-02), a
+    With ``passers_by`` (the default; False: the estimate as it was before 2026-12-02), a
     last pass mends the pixels where people passed in most of the frames, each in other
     clothes: the median is then a mixture that no frame shows (a smeared ghost, false
     foreground in every frame), and the masking above cannot leave those frames out,
@@ -250,7 +250,7 @@ def estimate_background_robust(images, iterations: int = 2, threshold: int = 24,
         out = np.empty_like(background)
         _masked_median(stack, masked, background, min_count, out, uncertain)
         background = out
-    if mode:
+    if passers_by:
         _largest_agreeing(stack, threshold, min_count, background, uncertain)
     return background, float(uncertain.mean())
 
@@ -456,7 +456,7 @@ def recording_backgrounds(recording, frames: int = 25, still_people: bool = True
     """Every camera's background of a recording (camera -> BGR image), as the
     segmentation worker makes them: the ``background/`` image where there is one, else the
     estimate from ``frames`` frames with the people left out
-    (:func:`estimate_background_robust`; ``passers_by``: its ``mode``); with ``still_people``, the people who stood
+    (:func:`estimate_background_robust`, with or without ``passers_by``); with ``still_people``, the people who stood
     still through most of the recording, and so are in those estimates, are found with
     the other cameras' views of the room and painted out of them
     (:mod:`app.background_views`). ``log``: a logger told what was estimated and found;
@@ -469,7 +469,7 @@ def recording_backgrounds(recording, frames: int = 25, still_people: bool = True
         if background is None:
             if status is not None:
                 status(f"estimating the background of {cam} from {frames} frames of the recording")
-            background, uncertain = estimate_background_robust(recording.sample(cam, frames), mode=passers_by)
+            background, uncertain = estimate_background_robust(recording.sample(cam, frames), passers_by=passers_by)
             estimated.add(cam)
             if log is not None:
                 log.warning("camera %s: no background image; estimated from %d frames of the recording with the "
