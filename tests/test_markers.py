@@ -553,6 +553,26 @@ def test_the_markers_the_detections_place_in_the_room_are_the_visible_joints():
     assert np.mean(d.min(axis=1) < 0.03) >= 0.8, np.round(d.min(axis=1), 3)
 
 
+def test_a_person_only_two_views_see_has_their_markers_placed_by_the_pair_alone():
+    """The third view's test asks for a view with detections: where the other cameras of a
+    rig see nothing of the person (the detections near them cut away), a pair's
+    agreement alone supports a marker, as on a rig of two cameras (random-29's person, seen
+    by two of four cameras, was left with no supported marker and no limb proposal)."""
+    from app.markers.epipolar import ideal_pixels
+    from app.markers.likelihood import supported_detections
+    from app.simulation.simulator import Simulator
+    cams = Simulator("walk1", fps=25, seconds=0.2, width=640, height=480).calibration.cameras
+    X = _standing(3.0, 2.0)
+    dets, _ = synthetic_detections(X[None], [1.75], cams, DetectorModel(1.0, 0, 1.0), np.random.default_rng(2))
+    two = [d if n < 2 else np.zeros((0, 2)) for n, d in enumerate(dets)]
+    ideal = [ideal_pixels(c, d) for c, d in zip(cams, two)]
+    flags, points, _ = supported_detections(ideal, cams, fundamentals(cams), 6.0)
+    both = np.all([visible_markers(X[None], [1.75], c)[0] for c in cams[:2]], axis=0)
+    assert flags.mean() >= 0.8, flags
+    d = np.linalg.norm(points[:, None] - X[None], axis=2)
+    assert (d.min(axis=0) < 0.03)[both].all()
+
+
 def test_the_viewer_scene_draws_the_triangulated_markers():
     from tests.test_viewer import _attribute, _frame_group
     from app.viewer.scene import MARKER_COLOUR, Scene

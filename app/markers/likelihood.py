@@ -255,9 +255,10 @@ def tabled_costs(X, K, R, t, E1, E2, det, start, supported, rho, reprojection, e
 
 def supported_detections(ideal, cameras, F, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which detections (flat, view by view) are a marker seen from several views: with
-    three views or more, one detection of another view lies within ``tol`` of its epipolar
-    line and the point the two triangulate projects within ``tol`` of a detection of a
-    third view (a false detection rarely has both); with two views, the first test alone.
+    three views or more that have detections, one detection of another view lies within
+    ``tol`` of its epipolar line and the point the two triangulate projects within ``tol``
+    of a detection of a third view (a false detection rarely has both); with two such
+    views, the first test alone (a rig's other cameras may see nothing of the person).
     Also the 3D points (K, 3) the supported pairs triangulate (marker candidates), and
     those (K2, 3) of every consistent pair (a marker two views see, or a chance match)."""
     det, start = stacked(ideal)
@@ -342,6 +343,10 @@ def _supported(det, start, E1, E2, K, R, t, centres, tol):
     db = np.empty(3)
     X = np.empty(3)
     tol2 = tol * tol
+    views = 0                                  # views with detections: the third view's test needs one
+    for c in range(C):
+        if start[c + 1] > start[c]:
+            views += 1
     for a in range(C):
         for b in range(a + 1, C):
             oa = centres[a]
@@ -368,7 +373,7 @@ def _supported(det, start, E1, E2, K, R, t, centres, tol):
                         X[i] = 0.5 * (oa[i] + sa * da[i] + ob[i] + sb * db[i])
                     pairs[n_pairs] = X
                     n_pairs += 1
-                    if C < 3:
+                    if views < 3:
                         flags[qa] = flags[qb] = True
                         points[n_points] = X
                         n_points += 1
